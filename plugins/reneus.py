@@ -1,0 +1,7 @@
+import mitsuba as mi
+
+VARIANT = mi.variant()
+
+
+class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
+    pass

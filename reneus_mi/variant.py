@@ -1,0 +1,44 @@
+"""Choice of the Mitsuba variant, made once per process.
+
+``cuda_ad_rgb`` when Dr.Jit sees a CUDA device, ``llvm_ad_rgb`` otherwise. The
+environment variable ``RENEUS_VARIANT`` overrides the choice.
+"""
+from __future__ import annotations
+
+import os
+
+import drjit as dr
+import mitsuba as mi
+
+SUPPORTED = ('llvm_ad_rgb', 'cuda_ad_rgb')
+
+
+def default_variant() -> str:
+    requested = os.environ.get('RENEUS_VARIANT')
+    if requested:
+        if requested not in SUPPORTED:
+            raise ValueError(f"RENEUS_VARIANT={requested!r}: expected one of {', '.join(SUPPORTED)}")
+        return requested
+    return 'cuda_ad_rgb' if dr.has_backend(dr.JitBackend.CUDA) else 'llvm_ad_rgb'
+
+
+def set_variant(name: str | None = None) -> str:
+    """Activate ``name`` (or the default) and register the plugins for it."""
+    name = name or default_variant()
+    if name not in SUPPORTED:
+        raise ValueError(f"variant {name!r}: expected one of {', '.join(SUPPORTED)}")
+    if mi.variant() != name:
+        mi.set_variant(name)
+    from reneus_mi.plugins import register
+    register()
+    return name
+
+
+def ensure_variant() -> str:
+    """Keep a variant the caller already chose; otherwise pick the default."""
+    current = mi.variant()
+    return set_variant(current if current in SUPPORTED else None)
+
+
+def is_cuda() -> bool:
+    return mi.variant().startswith('cuda')
