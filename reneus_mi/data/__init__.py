@@ -1,0 +1,52 @@
+"""Datasets in and out: NeRF/Blender ``transforms.json`` and NeuS ``cameras_sphere.npz``.
+
+:func:`load_dataset` detects the format of a folder and returns a
+:class:`Dataset`; :func:`write_dataset` writes one in either format. The
+formats are described in :mod:`reneus_mi.data.blender` and
+:mod:`reneus_mi.data.neus`, the ReNeuS keys they share in
+:mod:`reneus_mi.data.dataset`.
+"""
+from __future__ import annotations
+
+import os
+
+from reneus_mi.data import blender, neus
+from reneus_mi.data.dataset import Dataset, check_writable
+
+FORMATS = {'blender': blender, 'neus': neus}
+
+__all__ = ['Dataset', 'load_dataset', 'write_dataset', 'FORMATS']
+
+
+def load_dataset(path: str, *, need_container: bool = True) -> Dataset:
+    """Read the dataset in folder ``path`` (or named by its metadata file).
+
+    The format is detected: a ``transforms.json`` (or ``transforms_train.json``)
+    means Blender, a ``cameras_sphere.npz`` means NeuS. With ``need_container``
+    a dataset without a container mesh is an error; without it, views lacking
+    a mask get an all-True one.
+    """
+    if os.path.basename(path) in (*blender.TRANSFORMS_FILES, neus.CAMERAS_FILE):
+        path = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(path):
+        raise ValueError(f"{path}: dataset folder is missing (expected a folder with "
+                         f"{blender.TRANSFORMS_FILES[0]} or {neus.CAMERAS_FILE})")
+    for module in (blender, neus):
+        found = module.find(path)
+        if found is not None:
+            return module.read(found, need_container=need_container)
+    raise ValueError(f"{path}: unknown dataset format (expected {blender.TRANSFORMS_FILES[0]} "
+                     f"or {neus.CAMERAS_FILE} in the folder)")
+
+
+def write_dataset(ds: Dataset, out_dir: str, fmt: str) -> None:
+    """Write ``ds`` into folder ``out_dir`` as ``fmt`` ('blender' or 'neus').
+
+    Images become 8-bit PNGs and the meshes are copied beside the metadata.
+    Everything is checked before the first file is written.
+    """
+    if fmt not in FORMATS:
+        raise ValueError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    check_writable(ds, out_dir)
+    os.makedirs(out_dir, exist_ok=True)
+    FORMATS[fmt].write(ds, out_dir)

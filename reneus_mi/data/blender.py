@@ -1,0 +1,148 @@
+"""NeRF/Blender ``transforms.json`` datasets (also nerfstudio's variant).
+
+Layout read::
+
+    DATA_DIR/transforms.json       (or transforms_train.json)
+    DATA_DIR/<file_path>[.png]     one image per frame, RGB or RGBA
+
+Intrinsics are ``camera_angle_x`` (optionally ``camera_angle_y``; principal
+point at the image centre) or ``fl_x``/``fl_y``/``cx``/``cy`` (optionally
+``w``/``h``), at the top level or per frame (a frame's own value wins). Each
+frame has ``file_path`` (with or without extension, relative to the folder) and
+``transform_matrix``: camera-to-world with OpenGL axes. An image's alpha
+channel is its container mask; frames without alpha get the container's
+projection. The ReNeuS keys ``IOR``, ``mesh_outside``, ``mesh_inside`` (and
+``scale_mat``) are described in :mod:`reneus_mi.data.dataset`.
+
+The writer puts 8-bit RGBA PNGs (alpha = mask) in ``images/`` and the meshes
+beside ``transforms.json``.
+"""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
+                                    intrinsics)
+from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
+from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, write_png
+
+#: Metadata file names, in order of preference.
+TRANSFORMS_FILES = ('transforms.json', 'transforms_train.json')
+
+_INTRINSIC_KEYS = ('camera_angle_x', 'camera_angle_y', 'fl_x', 'fl_y', 'cx', 'cy', 'w', 'h')
+
+
+def find(root: str) -> str | None:
+    """Path of the dataset's transforms file, or None when it has none."""
+    for name in TRANSFORMS_FILES:
+        path = os.path.join(root, name)
+        if os.path.isfile(path):
+            return path
+    return None
+
+
+def _image_path(root: str, file_path: str, where: str) -> str:
+    path = os.path.normpath(os.path.join(root, file_path))
+    if os.path.isfile(path):
+        return path
+    for ext in IMAGE_EXTENSIONS:
+        if os.path.isfile(path + ext):
+            return path + ext
+    raise ValueError(f"{where}: image '{file_path}' is missing (looked for {path} with and "
+                     f"without the extensions {', '.join(IMAGE_EXTENSIONS[:4])})")
+
+
+def _number(cam: dict, key: str, where: str) -> float:
+    value = cam[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise ValueError(f"{where}: '{key}' must be a number, got {value!r}")
+    return float(value)
+
+
+def _intrinsics(cam: dict, width: int, height: int, where: str) -> np.ndarray:
+    for key, size in (('w', width), ('h', height)):
+        if key in cam and _number(cam, key, where) != size:
+            raise ValueError(f"{where}: '{key}' is {cam[key]}, but the image is {width}x{height}")
+    if 'fl_x' in cam:
+        fx = _number(cam, 'fl_x', where)
+        fy = _number(cam, 'fl_y', where) if 'fl_y' in cam else fx
+    elif 'camera_angle_x' in cam:
+        fx = focal_from_fov(_number(cam, 'camera_angle_x', where), width)
+        fy = (focal_from_fov(_number(cam, 'camera_angle_y', where), height)
+              if 'camera_angle_y' in cam else fx)
+    else:
+        raise ValueError(f"{where}: expected intrinsics 'camera_angle_x' or 'fl_x'")
+    cx = _number(cam, 'cx', where) if 'cx' in cam else 0.5 * width
+    cy = _number(cam, 'cy', where) if 'cy' in cam else 0.5 * height
+    return check_K(intrinsics(fx, fy, cx, cy), where)
+
+
+def read(path: str, *, need_container: bool = True) -> Dataset:
+    """Read the dataset described by the transforms file ``path``."""
+    root = os.path.dirname(os.path.abspath(path))
+    try:
+        with open(path) as f:
+            meta = json.load(f)
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path}: unreadable JSON ({err})") from None
+    frames = meta.get('frames') if isinstance(meta, dict) else None
+    if not isinstance(frames, list) or not frames:
+        raise ValueError(f"{path}: expected a non-empty list 'frames'")
+    top = {k: meta[k] for k in _INTRINSIC_KEYS if k in meta}
+    images, masks, Ks, c2ws, files = [], [], [], [], []
+    for i, frame in enumerate(frames):
+        where = f"{path}: frames[{i}]"
+        if not isinstance(frame, dict) or 'file_path' not in frame or 'transform_matrix' not in frame:
+            raise ValueError(f"{where}: expected 'file_path' and 'transform_matrix'")
+        file = _image_path(root, str(frame['file_path']), where)
+        rgb, alpha = read_image(file)
+        cam = {**top, **{k: frame[k] for k in _INTRINSIC_KEYS if k in frame}}
+        Ks.append(_intrinsics(cam, rgb.shape[1], rgb.shape[0], where))
+        try:
+            gl = np.asarray(frame['transform_matrix'], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where}: 'transform_matrix' must be a 4x4 matrix of numbers") from None
+        c2ws.append(check_c2w(gl, f"{where}: transform_matrix") @ OPENGL_FROM_OPENCV)
+        images.append(rgb)
+        masks.append(None if alpha is None else alpha > 0.5)
+        files.append(file)
+    return assemble(images=images, masks=masks, K=np.stack(Ks), c2w=np.stack(c2ws),
+                    names=[os.path.basename(f) for f in files], files=files, root=root,
+                    meta_file=path, need_container=need_container,
+                    **read_extras(meta, root, path))
+
+
+def write(ds: Dataset, out_dir: str) -> None:
+    """Write ``ds`` as ``out_dir/transforms.json`` plus ``images/*.png`` (checked beforehand)."""
+    if np.any(ds.K[:, 0, 1] != 0):
+        raise ValueError(f"{ds.root}: K has a skew term, which transforms.json cannot store")
+    os.makedirs(os.path.join(out_dir, 'images'), exist_ok=True)
+    shared = bool(np.all(ds.K == ds.K[0]))
+
+    def camera(K: np.ndarray) -> dict:
+        return {'fl_x': K[0, 0], 'fl_y': K[1, 1], 'cx': K[0, 2], 'cy': K[1, 2],
+                'w': ds.width, 'h': ds.height}
+
+    meta = {}
+    if shared:
+        meta['camera_angle_x'] = float(2.0 * np.arctan(0.5 * ds.width / ds.K[0, 0, 0]))
+        meta.update(camera(ds.K[0]))
+    meta.update(write_extras(ds, out_dir))
+    if ds.scale_mat is not None:
+        meta['scale_mat'] = np.asarray(ds.scale_mat).tolist()
+    frames = []
+    for i, name in enumerate(ds.names):
+        file_path = f"images/{os.path.splitext(name)[0]}.png"
+        write_png(os.path.join(out_dir, file_path),
+                  np.concatenate([ds.images[i], ds.masks[i][..., None]], axis=-1))
+        frame = {'file_path': file_path,
+                 'transform_matrix': (ds.c2w[i] @ OPENGL_FROM_OPENCV).tolist()}
+        if not shared:
+            frame.update(camera(ds.K[i]))
+        frames.append(frame)
+    meta['frames'] = frames
+    with open(os.path.join(out_dir, 'transforms.json'), 'w') as f:
+        json.dump(meta, f, indent=2, default=float)

@@ -1,0 +1,212 @@
+"""The in-memory dataset: posed photographs of an object inside a container.
+
+Both file formats (:mod:`reneus_mi.data.blender`, :mod:`reneus_mi.data.neus`)
+read into and write from :class:`Dataset`. The ReNeuS-specific facts that
+neither format has a field for are stored under the same JSON keys in both:
+
+- ``"IOR"``: the container's index of refraction (a number);
+- ``"mesh_outside"``: the container mesh (``.ply``/``.obj``, world
+  coordinates), a path relative to the dataset folder;
+- ``"mesh_inside"``: the ground-truth object mesh, same rules;
+- ``"scale_mat"``: (Blender format only, written by reneus-mi) NeuS's 4x4
+  normalisation matrix, so that a NeuS dataset survives a round trip.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import shutil
+
+import numpy as np
+
+from reneus_mi.data.cameras import check_c2w, check_K, pixel_rays
+from reneus_mi.data.container import bounding_sphere, container_masks, load_container, mesh_type
+
+
+@dataclasses.dataclass
+class Dataset:
+    """Posed photographs, container masks and the container itself.
+
+    Cameras are OpenCV pinholes (see :mod:`reneus_mi.data.cameras`); all
+    geometry is in world coordinates, the ones the container mesh is given in.
+    """
+    #: (N,H,W,3) float32 in [0,1]: pixel values as in the photographs (gamma-encoded).
+    images: np.ndarray
+    #: (N,H,W) bool: where the container is seen (the paper's M_in).
+    masks: np.ndarray
+    #: (N,3,3) float64 intrinsics in pixels.
+    K: np.ndarray
+    #: (N,4,4) float64 camera-to-world, OpenCV axes (x right, y down, z forward).
+    c2w: np.ndarray
+    #: Image file names, one per view.
+    names: list[str]
+    #: Folder the dataset was read from.
+    root: str
+    #: Path of the container mesh (world coordinates), if known.
+    container: str | None = None
+    #: Container index of refraction, if the dataset states it.
+    ior: float | None = None
+    #: Path of the ground-truth object mesh, if any.
+    gt_mesh: str | None = None
+    #: NeuS normalisation (unit sphere -> world), if the data has one.
+    scale_mat: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    @property
+    def height(self) -> int:
+        return self.images.shape[1]
+
+    @property
+    def width(self) -> int:
+        return self.images.shape[2]
+
+    def rays(self, view: np.ndarray, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World origins and unit directions (M,3) through pixel centres.
+
+        ``view`` (M,) holds view indices (a scalar applies to all), ``px``
+        (M,2) integer pixel coordinates x, y; the ray passes through
+        ``(x + 0.5, y + 0.5)``.
+        """
+        return pixel_rays(self.K, self.c2w, view, px)
+
+    def normalization(self) -> tuple[np.ndarray, float]:
+        """Centre and radius of the sphere the field lives in.
+
+        From ``scale_mat`` when the data has one, else the container's bounding
+        sphere.
+        """
+        if self.scale_mat is not None:
+            return np.array(self.scale_mat[:3, 3], dtype=np.float64), float(self.scale_mat[0, 0])
+        if self.container is not None:
+            return bounding_sphere(self.container)
+        raise ValueError(f"{self.root}: dataset has neither a NeuS scale_mat nor a container "
+                         "mesh, so the region to reconstruct is unknown")
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` unless every array has the documented shape and type."""
+        n = len(self.images)
+        if self.images.ndim != 4 or self.images.shape[-1] != 3 or n == 0:
+            raise ValueError(f"{self.root}: images: expected shape (N,H,W,3) with N > 0, "
+                             f"got {self.images.shape}")
+        if not np.all((self.images >= 0) & (self.images <= 1)):
+            raise ValueError(f"{self.root}: images: expected values in [0, 1]")
+        expected = {'masks': (self.masks, self.images.shape[:3]), 'K': (self.K, (n, 3, 3)),
+                    'c2w': (self.c2w, (n, 4, 4))}
+        for field, (value, shape) in expected.items():
+            if np.shape(value) != shape:
+                raise ValueError(f"{self.root}: {field}: expected shape {shape}, "
+                                 f"got {np.shape(value)}")
+        if self.masks.dtype != bool:
+            raise ValueError(f"{self.root}: masks: expected dtype bool, got {self.masks.dtype}")
+        if len(self.names) != n or len(set(self.names)) != n:
+            raise ValueError(f"{self.root}: names: expected {n} distinct names, got {self.names}")
+        for i in range(n):
+            check_K(self.K[i], f"{self.root}: K[{i}]")
+            check_c2w(self.c2w[i], f"{self.root}: c2w[{i}]")
+        if self.scale_mat is not None and np.shape(self.scale_mat) != (4, 4):
+            raise ValueError(f"{self.root}: scale_mat: expected shape (4, 4), "
+                             f"got {np.shape(self.scale_mat)}")
+        if self.ior is not None and not self.ior > 0:
+            raise ValueError(f"{self.root}: ior: expected a positive number, got {self.ior}")
+
+
+def read_extras(meta: dict, root: str, where: str) -> dict:
+    """Parse the ReNeuS keys of a metadata dict (see the module docstring)."""
+    out = {}
+    ior = meta.get('IOR')
+    if ior is not None:
+        if isinstance(ior, bool) or not isinstance(ior, (int, float)) or not ior > 0:
+            raise ValueError(f"{where}: 'IOR' must be a positive number, got {ior!r}")
+        out['ior'] = float(ior)
+    for key, field in (('mesh_outside', 'container'), ('mesh_inside', 'gt_mesh')):
+        rel = meta.get(key)
+        if rel is None:
+            continue
+        if not isinstance(rel, str):
+            raise ValueError(f"{where}: '{key}' must be a path string, got {rel!r}")
+        path = os.path.normpath(os.path.join(root, rel))
+        mesh_type(path)
+        if not os.path.isfile(path):
+            raise ValueError(f"{where}: '{key}' names {path}, which does not exist")
+        out[field] = path
+    if 'scale_mat' in meta:
+        scale_mat = np.asarray(meta['scale_mat'], dtype=np.float64)
+        if scale_mat.shape != (4, 4):
+            raise ValueError(f"{where}: 'scale_mat' must be a 4x4 matrix, got {meta['scale_mat']!r}")
+        out['scale_mat'] = scale_mat
+    return out
+
+
+def write_extras(ds: Dataset, out_dir: str) -> dict:
+    """Copy the dataset's meshes into ``out_dir``; return the ReNeuS keys naming them."""
+    meta = {}
+    if ds.ior is not None:
+        meta['IOR'] = float(ds.ior)
+    for key, path, stem in (('mesh_outside', ds.container, 'container'),
+                            ('mesh_inside', ds.gt_mesh, 'gt_mesh')):
+        if path is None:
+            continue
+        name = stem + os.path.splitext(path)[1].lower()
+        target = os.path.join(out_dir, name)
+        if not (os.path.exists(target) and os.path.samefile(path, target)):
+            shutil.copyfile(path, target)
+        meta[key] = name
+    return meta
+
+
+def check_writable(ds: Dataset, out_dir: str) -> None:
+    """Validate ``ds`` and its meshes before anything is written to ``out_dir``."""
+    ds.validate()
+    stems = [os.path.splitext(name)[0] for name in ds.names]
+    if len(set(stems)) != len(stems):
+        raise ValueError(f"{ds.root}: names: image names must differ without their extension, "
+                         f"got {ds.names}")
+    for path in (ds.container, ds.gt_mesh):
+        if path is not None:
+            mesh_type(path)
+            if not os.path.isfile(path):
+                raise ValueError(f"{path}: mesh file is missing")
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise ValueError(f"{out_dir}: expected a folder to write the dataset into, found a file")
+
+
+def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.ndarray,
+             c2w: np.ndarray, names: list[str], files: list[str], root: str, meta_file: str,
+             need_container: bool, container: str | None = None, ior: float | None = None,
+             gt_mesh: str | None = None, scale_mat: np.ndarray | None = None) -> Dataset:
+    """Check what a reader found and build the :class:`Dataset`.
+
+    ``files`` are the image paths (for messages); ``masks`` may hold None for
+    views without one: those are projected from the container, or are all
+    True when there is no container. ``meta_file`` is named when the container
+    is missing.
+    """
+    height, width = images[0].shape[:2]
+    for img, path in zip(images, files):
+        if img.shape[:2] != (height, width):
+            raise ValueError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, but "
+                             f"{files[0]} is {width}x{height}; all images must have one size")
+    for mask, path in zip(masks, files):
+        if mask is not None and mask.shape != (height, width):
+            raise ValueError(f"mask of {path}: is {mask.shape[1]}x{mask.shape[0]}, "
+                             f"expected the image size {width}x{height}")
+    if container is None and need_container:
+        raise ValueError(f"{meta_file}: dataset has no container mesh "
+                         "(expected a 'mesh_outside' entry naming a .ply/.obj file)")
+    if container is not None:
+        load_container(container)
+    missing = [i for i, m in enumerate(masks) if m is None]
+    if missing:
+        if container is not None:
+            computed = container_masks(container, K, c2w, height, width, missing)
+        else:
+            computed = np.ones((len(missing), height, width), bool)
+        for i, m in zip(missing, computed):
+            masks[i] = m
+    ds = Dataset(images=np.stack(images).astype(np.float32), masks=np.stack(masks),
+                 K=np.asarray(K, np.float64), c2w=np.asarray(c2w, np.float64), names=list(names),
+                 root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat)
+    ds.validate()
+    return ds

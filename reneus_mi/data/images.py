@@ -1,0 +1,55 @@
+"""Reading and writing images with :class:`mitsuba.Bitmap`.
+
+Photographs are kept as they were taken: gamma-encoded values in [0, 1].
+8/16-bit PNG and JPEG are sRGB-encoded already; linear files (EXR) are encoded
+with the sRGB curve on reading so that every image of a dataset means the same.
+"""
+from __future__ import annotations
+
+import os
+
+import mitsuba as mi
+import numpy as np
+
+#: File extensions tried, in this order, for a NeRF ``file_path`` without one.
+IMAGE_EXTENSIONS = ('.png', '.jpg', '.jpeg', '.exr', '.PNG', '.JPG', '.JPEG', '.EXR')
+
+_WITH_ALPHA = ('YA', 'RGBA')
+
+
+def read_image(path: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """Return ``(rgb, alpha)``: (H,W,3) float32 in [0,1], and (H,W) float32 or None.
+
+    Grey images are expanded to RGB; ``alpha`` is None when the file has none.
+    """
+    if not os.path.isfile(path):
+        raise ValueError(f"{path}: image file is missing")
+    try:
+        bmp = mi.Bitmap(path)
+        has_alpha = bmp.pixel_format().name in _WITH_ALPHA
+        rgba = np.array(bmp.convert(mi.Bitmap.PixelFormat.RGBA, mi.Struct.Type.Float32,
+                                    srgb_gamma=True), dtype=np.float32)
+    except RuntimeError as err:
+        raise ValueError(f"{path}: unreadable image ({err})") from None
+    if not np.all(np.isfinite(rgba)):
+        raise ValueError(f"{path}: image has non-finite pixel values")
+    # HDR files may exceed 1: the dataset promises display values.
+    rgba = np.clip(rgba, 0.0, 1.0)
+    return rgba[..., :3], (rgba[..., 3] if has_alpha else None)
+
+
+def read_mask(path: str) -> np.ndarray:
+    """Return a (H,W) bool mask: any channel above one half (alpha if present)."""
+    rgb, alpha = read_image(path)
+    return (alpha if alpha is not None else rgb.max(axis=-1)) > 0.5
+
+
+def write_png(path: str, image: np.ndarray) -> None:
+    """Write a float image in [0,1] ((H,W), (H,W,3) or (H,W,4)) as an 8-bit PNG."""
+    image = np.asarray(image)
+    if image.ndim == 2:
+        image = image[..., None]
+    fmt = {1: mi.Bitmap.PixelFormat.Y, 3: mi.Bitmap.PixelFormat.RGB,
+           4: mi.Bitmap.PixelFormat.RGBA}[image.shape[-1]]
+    u8 = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+    mi.Bitmap(u8, pixel_format=fmt).write(path)
