@@ -25,7 +25,7 @@ import os
 import numpy as np
 
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
-                                    intrinsics)
+                                    has_skew, intrinsics)
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
 from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, write_png
 
@@ -117,7 +117,7 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
 
 def write(ds: Dataset, out_dir: str) -> None:
     """Write ``ds`` as ``out_dir/transforms.json`` plus ``images/*.png`` (checked beforehand)."""
-    if np.any(ds.K[:, 0, 1] != 0):
+    if np.any(has_skew(ds.K)):
         raise ValueError(f"{ds.root}: K has a skew term, which transforms.json cannot store")
     os.makedirs(os.path.join(out_dir, 'images'), exist_ok=True)
     shared = bool(np.all(ds.K == ds.K[0]))

@@ -33,9 +33,33 @@ def intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
+def has_skew(K: np.ndarray) -> np.ndarray:
+    """Whether intrinsics (..., 3, 3) have a skew term beyond round-off."""
+    return np.abs(K[..., 0, 1]) > 1e-9 * K[..., 0, 0]
+
+
 def focal_from_fov(fov: float, size: int) -> float:
     """Focal length in pixels of a field of view ``fov`` (radians) across ``size`` pixels."""
     return 0.5 * size / np.tan(0.5 * fov)
+
+
+def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """OpenCV camera-to-world of a camera at ``eye`` looking at ``target``.
+
+    ``up`` points up in the image (so the camera's y axis, which points down,
+    is as close to ``-up`` as the viewing direction allows).
+    """
+    eye = np.asarray(eye, dtype=np.float64)
+    forward = np.asarray(target, dtype=np.float64) - eye
+    right = np.cross(forward, up)
+    if np.linalg.norm(forward) == 0 or np.linalg.norm(right) < 1e-12 * np.linalg.norm(forward):
+        raise ValueError(f"look_at: eye {eye.tolist()} must differ from target {target} and the "
+                         f"viewing direction must not be parallel to up {up}")
+    forward /= np.linalg.norm(forward)
+    right /= np.linalg.norm(right)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, np.cross(forward, right), forward, eye
+    return c2w
 
 
 def check_c2w(c2w: np.ndarray, where: str) -> np.ndarray:

@@ -1,0 +1,205 @@
+"""Mitsuba 3 scene of a dataset: the container, the lighting and one camera.
+
+:func:`write_scene` writes an XML file (format version 3.0.0) that
+``mi.load_file`` reads: the container mesh as a smooth ``dielectric``
+(``int_ior`` from the dataset, else 1.45 like the paper's synthetic data), the
+paper's homogeneous ambient light (a ``constant`` emitter of radiance 0.8), a
+``perspective`` sensor reproducing the first view's pixel rays, and the
+integrator. For the ``reneus`` integrator it also names the dataset and the
+sphere the field lives in (``field_center``, ``field_scale``, see
+:meth:`reneus_mi.data.Dataset.normalization`).
+
+Command line::
+
+    python -m reneus_mi.scene DATA_DIR -o scene.xml [--integrator reneus] [--set max_depth=3]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import warnings
+import xml.etree.ElementTree as ET
+
+import mitsuba as mi
+import numpy as np
+
+from reneus_mi.data import Dataset, load_dataset
+from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
+from reneus_mi.data.container import mesh_type
+
+#: Container IOR when the dataset states none (the paper's synthetic glass).
+DEFAULT_IOR = 1.45
+#: Radiance of the ambient light (the paper's C_out for synthetic data).
+AMBIENT_RADIANCE = 0.8
+#: Samples per pixel of the written sampler.
+SAMPLE_COUNT = 16
+#: Relative focal-length difference above which fx != fy is reported.
+_SQUARE_PIXEL_TOL = 1e-4
+#: Integrator properties that write_scene sets itself for the reneus integrator.
+_RESERVED = ('dataset', 'field_center', 'field_scale')
+
+
+def sensor_params(K: np.ndarray, c2w: np.ndarray, width: int, height: int) -> dict:
+    """Properties of a Mitsuba ``perspective`` sensor equal to an OpenCV camera.
+
+    Returns ``to_world`` (4x4 numpy), ``fov`` (degrees, along x) and
+    ``principal_point_offset_x/y`` (fractions of the film size). Mitsuba
+    models square pixels without skew; others are approximated with ``fx``
+    and a warning.
+    """
+    fx, fy = K[0, 0], K[1, 1]
+    if abs(fx - fy) > _SQUARE_PIXEL_TOL * fx or has_skew(K):
+        warnings.warn(f"camera with fx={fx}, fy={fy}, skew={K[0, 1]}: a Mitsuba perspective "
+                      "sensor has square pixels and no skew; using fx for both axes")
+    return {'to_world': c2w @ MITSUBA_FROM_OPENCV,
+            'fov': float(np.degrees(2.0 * np.arctan(0.5 * width / fx))),
+            # Mitsuba's offset moves the image, not the principal point: hence centre - c.
+            'principal_point_offset_x': float((0.5 * width - K[0, 2]) / width),
+            'principal_point_offset_y': float((0.5 * height - K[1, 2]) / height)}
+
+
+def sensor_dict(K: np.ndarray, c2w: np.ndarray, width: int, height: int) -> dict:
+    """``mi.load_dict`` description of the sensor of one view (box-filtered film)."""
+    params = sensor_params(K, c2w, width, height)
+    return {'type': 'perspective', 'fov_axis': 'x', **params,
+            'to_world': mi.ScalarTransform4f(params['to_world']),
+            'sampler': {'type': 'independent', 'sample_count': SAMPLE_COUNT},
+            'film': {'type': 'hdrfilm', 'width': width, 'height': height,
+                     'pixel_format': 'rgb', 'rfilter': {'type': 'box'}}}
+
+
+def _num(x: float) -> str:
+    return repr(float(x))
+
+
+def _prop(parent: ET.Element, name: str, value) -> None:
+    """Append ``value`` as the XML property its Python type calls for."""
+    if isinstance(value, (bool, np.bool_)):
+        ET.SubElement(parent, 'boolean', name=name, value='true' if value else 'false')
+    elif isinstance(value, (int, np.integer)):
+        ET.SubElement(parent, 'integer', name=name, value=str(int(value)))
+    elif isinstance(value, (float, np.floating)):
+        ET.SubElement(parent, 'float', name=name, value=_num(value))
+    elif isinstance(value, str):
+        ET.SubElement(parent, 'string', name=name, value=value)
+    else:
+        raise ValueError(f"integrator setting {name}={value!r}: expected a bool, int, float "
+                         f"or str, got {type(value).__name__}")
+
+
+def _relative(path: str, xml_dir: str) -> str:
+    try:
+        return os.path.relpath(path, xml_dir)
+    except ValueError:  # another drive on Windows: no relative path exists
+        return os.path.abspath(path)
+
+
+def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus',
+              **integrator_settings) -> ET.ElementTree:
+    """Build the scene of :func:`write_scene`; file paths relative to ``xml_dir``."""
+    if ds.container is None:
+        raise ValueError(f"{ds.root}: dataset has no container mesh; a scene needs one")
+    shape_type = mesh_type(ds.container)
+    clash = [k for k in integrator_settings if integrator == 'reneus' and k in _RESERVED]
+    if clash:
+        raise ValueError(f"integrator settings {clash}: set by write_scene from the dataset")
+    ior = ds.ior
+    if ior is None:
+        warnings.warn(f"{ds.root}: dataset states no container IOR; using {DEFAULT_IOR}")
+        ior = DEFAULT_IOR
+
+    scene = ET.Element('scene', version='3.0.0')
+    integ = ET.SubElement(scene, 'integrator', type=integrator, id='field')
+    if integrator == 'reneus':
+        centre, radius = ds.normalization()
+        ET.SubElement(integ, 'string', name='dataset', value=os.path.abspath(ds.root))
+        ET.SubElement(integ, 'point', name='field_center',
+                      **{axis: _num(c) for axis, c in zip('xyz', centre)})
+        ET.SubElement(integ, 'float', name='field_scale', value=_num(radius))
+    for name, value in integrator_settings.items():
+        _prop(integ, name, value)
+
+    params = sensor_params(ds.K[0], ds.c2w[0], ds.width, ds.height)
+    sensor = ET.SubElement(scene, 'sensor', type='perspective', id='view_0')
+    ET.SubElement(sensor, 'string', name='fov_axis', value='x')
+    for name in ('fov', 'principal_point_offset_x', 'principal_point_offset_y'):
+        ET.SubElement(sensor, 'float', name=name, value=_num(params[name]))
+    to_world = ET.SubElement(sensor, 'transform', name='to_world')
+    ET.SubElement(to_world, 'matrix', value=' '.join(map(_num, params['to_world'].ravel())))
+    sampler = ET.SubElement(sensor, 'sampler', type='independent')
+    ET.SubElement(sampler, 'integer', name='sample_count', value=str(SAMPLE_COUNT))
+    film = ET.SubElement(sensor, 'film', type='hdrfilm')
+    ET.SubElement(film, 'integer', name='width', value=str(ds.width))
+    ET.SubElement(film, 'integer', name='height', value=str(ds.height))
+    ET.SubElement(film, 'string', name='pixel_format', value='rgb')
+    ET.SubElement(film, 'rfilter', type='box')
+
+    emitter = ET.SubElement(scene, 'emitter', type='constant')
+    ET.SubElement(emitter, 'rgb', name='radiance', value=_num(AMBIENT_RADIANCE))
+
+    shape = ET.SubElement(scene, 'shape', type=shape_type, id='container')
+    ET.SubElement(shape, 'string', name='filename', value=_relative(ds.container, xml_dir))
+    bsdf = ET.SubElement(shape, 'bsdf', type='dielectric')
+    ET.SubElement(bsdf, 'float', name='int_ior', value=_num(ior))
+    # The paper's outside medium is air with an index of exactly 1.
+    ET.SubElement(bsdf, 'float', name='ext_ior', value='1.0')
+
+    tree = ET.ElementTree(scene)
+    ET.indent(tree)
+    return tree
+
+
+def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus',
+                **integrator_settings) -> None:
+    """Write the Mitsuba 3 scene XML of ``ds`` to ``path``.
+
+    ``integrator_settings`` become properties of the integrator, typed by
+    their Python type (bool, int, float, str). Nothing is written when
+    anything is wrong.
+    """
+    xml_dir = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(xml_dir):
+        raise ValueError(f"{path}: folder {xml_dir} does not exist")
+    tree = scene_xml(ds, xml_dir, integrator=integrator, **integrator_settings)
+    tree.write(path, encoding='utf-8', xml_declaration=True)
+
+
+def _setting(text: str) -> tuple[str, bool | int | float | str]:
+    """Parse ``KEY=VALUE`` from the command line, typing VALUE."""
+    key, sep, value = text.partition('=')
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE")
+    if value.lower() in ('true', 'false'):
+        return key, value.lower() == 'true'
+    for cast in (int, float):
+        try:
+            return key, cast(value)
+        except ValueError:
+            pass
+    return key, value
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog='python -m reneus_mi.scene',
+        description='Write a Mitsuba 3 scene (container, ambient light, first camera, '
+                    'integrator) for a ReNeuS dataset.')
+    parser.add_argument('data_dir', metavar='DATA_DIR',
+                        help='dataset folder (transforms.json or cameras_sphere.npz)')
+    parser.add_argument('-o', '--output', required=True, help='scene XML file to write')
+    parser.add_argument('--integrator', default='reneus',
+                        help='integrator plugin name (default: %(default)s)')
+    parser.add_argument('--set', dest='settings', metavar='KEY=VALUE', type=_setting,
+                        action='append', default=[],
+                        help='integrator property; true/false, integers and floats are typed '
+                             'as such, anything else is a string (repeatable)')
+    args = parser.parse_args(argv)
+    try:
+        write_scene(load_dataset(args.data_dir), args.output, integrator=args.integrator,
+                    **dict(args.settings))
+    except ValueError as err:
+        parser.exit(2, f"error: {err}\n")
+
+
+if __name__ == '__main__':
+    main()
