@@ -1,0 +1,250 @@
+"""Datasets: Blender and NeuS round trips, camera conventions, masks, bad input."""
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+import trimesh
+
+from reneus_mi.data import Dataset, load_dataset, write_dataset
+from reneus_mi.data.cameras import OPENGL_FROM_OPENCV, intrinsics, look_at
+from reneus_mi.data.container import container_masks
+from reneus_mi.data.images import write_png
+
+H, W = 12, 16
+BOX = (1.0, 0.8, 0.6)
+
+
+def make_dataset(folder) -> Dataset:
+    """Three views of a box container, random pixels and masks, varied intrinsics."""
+    box = os.path.join(folder, 'box.ply')
+    trimesh.creation.box(extents=BOX).export(box)
+    rng = np.random.default_rng(0)
+    eyes = [(3.0, 0.5, 1.0), (-1.0, 2.5, -0.5), (0.3, -2.8, 1.5)]
+    return Dataset(images=rng.random((3, H, W, 3)).astype(np.float32),
+                   masks=rng.random((3, H, W)) > 0.5,
+                   K=np.stack([intrinsics(14.0 + i, 14.0 + i, 8.0 + 0.25 * i, 6.0 - 0.5 * i)
+                               for i in range(3)]),
+                   c2w=np.stack([look_at(e) for e in eyes]),
+                   names=['v0.png', 'v1.png', 'v2.png'], root=str(folder),
+                   container=box, ior=1.5)
+
+
+@pytest.fixture(scope='module')
+def written(tmp_path_factory):
+    """The dataset and its two written copies (folders are copied before mutation)."""
+    root = tmp_path_factory.mktemp('data')
+    ds = make_dataset(root)
+    for fmt in ('blender', 'neus'):
+        write_dataset(ds, str(root / fmt), fmt)
+    return ds, root
+
+
+def mutable(written, tmp_path, fmt):
+    folder = tmp_path / fmt
+    shutil.copytree(written[1] / fmt, folder)
+    return folder
+
+
+@pytest.mark.parametrize('fmt', ['blender', 'neus'])
+def test_round_trip(written, fmt):
+    ds, root = written
+    back = load_dataset(str(root / fmt))
+    assert back.names == ds.names
+    assert np.abs(back.K - ds.K).max() < 1e-5
+    assert np.abs(back.c2w - ds.c2w).max() < 1e-5
+    # 8-bit PNG: half a quantisation step.
+    assert np.abs(back.images - ds.images).max() <= 0.5 / 255 + 1e-6
+    assert np.array_equal(back.masks, ds.masks)
+    assert back.ior == 1.5 and back.gt_mesh is None
+    assert os.path.dirname(back.container) == str(root / fmt)
+    centre, radius = back.normalization()
+    assert np.abs(centre).max() < 1e-6 and abs(radius - np.linalg.norm(BOX) / 2) < 1e-6
+
+    rng = np.random.default_rng(1)
+    view = rng.integers(0, 3, 50)
+    px = np.stack([rng.integers(0, W, 50), rng.integers(0, H, 50)], axis=1)
+    (o0, d0), (o1, d1) = ds.rays(view, px), back.rays(view, px)
+    assert np.abs(o1 - o0).max() < 1e-5 and np.abs(d1 - d0).max() < 1e-5
+    assert np.allclose(np.linalg.norm(d1, axis=1), 1.0)
+
+
+def test_rays_follow_K():
+    """A ray through pixel (x, y) reprojects to (x + 0.5, y + 0.5)."""
+    K = intrinsics(20.0, 18.0, 7.0, 5.5)[None]
+    c2w = look_at((1.0, 2.0, 3.0))[None]
+    ds = Dataset(np.zeros((1, H, W, 3), np.float32), np.ones((1, H, W), bool), K, c2w, ['a'], '.')
+    px = np.array([[0, 0], [15, 11], [3, 9]])
+    o, d = ds.rays(0, px)
+    p_cam = np.einsum('ij,mj->mi', np.linalg.inv(c2w[0]), np.c_[o + 2.0 * d, np.ones(3)])[:, :3]
+    uv = np.einsum('ij,mj->mi', K[0], p_cam)
+    assert np.abs(uv[:, :2] / uv[:, 2:] - (px + 0.5)).max() < 1e-9
+
+
+def test_blender_opengl_convention(tmp_path):
+    """A hand-written transforms.json: OpenGL c2w, no extensions, RGB images."""
+    h, w = 13, 17  # odd: pixel (8, 6) is centred on the principal point
+    eye = np.array([0.0, -4.0, 1.0])
+    back = eye / np.linalg.norm(eye)  # OpenGL cameras look down -z
+    right = np.cross([0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    gl = np.eye(4)
+    gl[:3, 0], gl[:3, 1], gl[:3, 2], gl[:3, 3] = right, np.cross(back, right), back, eye
+    trimesh.creation.box(extents=BOX).export(tmp_path / 'glass.obj')
+    os.makedirs(tmp_path / 'train')
+    write_png(str(tmp_path / 'train' / 'r_0.png'), np.full((h, w, 3), 0.5))
+    meta = {'camera_angle_x': 0.6, 'IOR': 1.45, 'mesh_outside': 'glass.obj',
+            'frames': [{'file_path': './train/r_0', 'transform_matrix': gl.tolist()}]}
+    (tmp_path / 'transforms.json').write_text(json.dumps(meta))
+
+    ds = load_dataset(str(tmp_path))
+    assert ds.names == ['r_0.png'] and ds.ior == 1.45
+    assert np.isclose(ds.K[0, 0, 0], 0.5 * w / np.tan(0.3)) and ds.K[0, 0, 2] == w / 2
+    o, d = ds.rays(0, np.array([[8, 6], [16, 6], [8, 12]]))
+    # The centre ray passes through the origin the camera looks at...
+    assert np.linalg.norm(np.cross(-o[0], d[0])) < 1e-12 and d[0] @ -o[0] > 0
+    # ...image x goes right, image y goes down (OpenGL's up is -y).
+    assert (d[1] - d[0]) @ gl[:3, 0] > 0.1 and (d[2] - d[0]) @ gl[:3, 1] < -0.1
+    # RGB images: the masks are the container's projection, the box is in the middle.
+    assert ds.masks[0, 6, 8] and not ds.masks[0, 0, 0]
+
+
+def test_masks_match_box_projection(tmp_path):
+    """Camera on +z looking down at the box: its silhouette is the front face."""
+    trimesh.creation.box(extents=BOX).export(tmp_path / 'box.ply')
+    h, w, f, dist = 24, 32, 20.0, 3.0
+    K = intrinsics(f, f, 15.0, 12.5)[None]
+    c2w = look_at((0.0, 0.0, dist), up=(0.0, 1.0, 0.0))[None]
+    mask = container_masks(str(tmp_path / 'box.ply'), K, c2w, h, w)[0]
+    # Pixel centre (u, v) meets the front face z = 0.3 at (X, Y); image y is world -y.
+    v, u = np.mgrid[:h, :w] + 0.5
+    depth = dist - BOX[2] / 2
+    x, y = (u - 15.0) / f * depth, -(v - 12.5) / f * depth
+    expected = (np.abs(x) < BOX[0] / 2) & (np.abs(y) < BOX[1] / 2)
+    assert 0 < expected.sum() < h * w
+    assert np.array_equal(mask, expected)
+
+
+def test_neus_without_masks_projects_container(written, tmp_path):
+    ds = written[0]
+    folder = mutable(written, tmp_path, 'neus')
+    shutil.rmtree(folder / 'mask')
+    back = load_dataset(str(folder))
+    assert np.array_equal(back.masks, container_masks(ds.container, ds.K, ds.c2w, H, W))
+    assert back.masks.any() and not back.masks.all()
+
+
+def test_without_container(written, tmp_path):
+    folder = mutable(written, tmp_path, 'blender')
+    meta = json.loads((folder / 'transforms.json').read_text())
+    del meta['mesh_outside']
+    (folder / 'transforms.json').write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=r"transforms.json: dataset has no container mesh"):
+        load_dataset(str(folder))
+    ds = load_dataset(str(folder), need_container=False)
+    assert ds.container is None and np.array_equal(ds.masks, written[0].masks)
+    with pytest.raises(ValueError, match="neither a NeuS scale_mat nor a container"):
+        ds.normalization()
+
+
+def _edit_json(path, edit):
+    meta = json.loads(path.read_text())
+    edit(meta)
+    path.write_text(json.dumps(meta))
+
+
+def test_blender_errors(written, tmp_path):
+    folder = mutable(written, tmp_path, 'blender')
+    meta_path = folder / 'transforms.json'
+    original = meta_path.read_text()
+
+    os.rename(folder / 'images' / 'v1.png', folder / 'v1.png')
+    with pytest.raises(ValueError, match=r"frames\[1\]: image 'images/v1.png' is missing"):
+        load_dataset(str(folder))
+    os.rename(folder / 'v1.png', folder / 'images' / 'v1.png')
+
+    _edit_json(meta_path, lambda m: m['frames'][2].update(
+        transform_matrix=[[1, 0, 0, 0], [0, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))
+    with pytest.raises(ValueError, match=r"frames\[2\]: transform_matrix: camera matrix is not "
+                                         "invertible"):
+        load_dataset(str(folder))
+    meta_path.write_text(original)
+
+    _edit_json(meta_path, lambda m: m['frames'][0].pop('fl_x'))
+    with pytest.raises(ValueError, match="expected intrinsics 'camera_angle_x' or 'fl_x'"):
+        load_dataset(str(folder))
+    meta_path.write_text('{"frames": [')
+    with pytest.raises(ValueError, match="transforms.json: unreadable JSON"):
+        load_dataset(str(folder))
+    meta_path.write_text(original)
+
+    write_png(str(folder / 'images' / 'v2.png'), np.zeros((H + 1, W, 3)))
+    with pytest.raises(ValueError, match=r"frames\[2\]: 'h' is 12, but the image is 16x13"):
+        load_dataset(str(folder))
+    (folder / 'images' / 'v2.png').write_bytes(b'not a png')
+    with pytest.raises(ValueError, match=r"v2.png: unreadable image"):
+        load_dataset(str(folder))
+
+
+def test_neus_errors(written, tmp_path):
+    folder = mutable(written, tmp_path, 'neus')
+    os.remove(folder / 'image' / 'v2.png')
+    with pytest.raises(ValueError, match=r"image: has 2 images, but .*cameras_sphere.npz has 3 "
+                                         "cameras"):
+        load_dataset(str(folder))
+    write_png(str(folder / 'image' / 'v2.png'), np.zeros((H, W + 2, 3)))
+    with pytest.raises(ValueError, match=r"v2.png: image is 18x12, but .*v0.png is 16x12"):
+        load_dataset(str(folder))
+    shutil.copy(folder / 'image' / 'v1.png', folder / 'image' / 'v2.png')
+
+    cams = dict(np.load(folder / 'cameras_sphere.npz'))
+    cams['world_mat_1'] = np.diag([1.0, 1.0, 0.0, 1.0])
+    np.savez(folder / 'cameras_sphere.npz', **cams)
+    with pytest.raises(ValueError, match="world_mat_1: camera matrix is not invertible"):
+        load_dataset(str(folder))
+    cams = dict(np.load(written[1] / 'neus' / 'cameras_sphere.npz'))
+    cams['scale_mat_2'] = 2.0 * cams['scale_mat_2']
+    np.savez(folder / 'cameras_sphere.npz', **cams)
+    with pytest.raises(ValueError, match="scale_mat_2: expected a 4x4 matrix equal to scale_mat_0"):
+        load_dataset(str(folder))
+    shutil.copy(written[1] / 'neus' / 'cameras_sphere.npz', folder)
+
+    open_box = trimesh.creation.box(extents=BOX)
+    open_box.update_faces(np.arange(len(open_box.faces)) != 0)
+    open_box.export(folder / 'container.ply')
+    with pytest.raises(ValueError, match="container.ply: container mesh is not closed"):
+        load_dataset(str(folder))
+    (folder / 'reneus.json').write_text(json.dumps({'mesh_outside': 'nowhere.ply'}))
+    with pytest.raises(ValueError, match="reneus.json: 'mesh_outside' names .*nowhere.ply, which "
+                                         "does not exist"):
+        load_dataset(str(folder))
+
+
+def test_unknown_format(tmp_path):
+    with pytest.raises(ValueError, match="unknown dataset format"):
+        load_dataset(str(tmp_path))
+    with pytest.raises(ValueError, match="dataset folder is missing"):
+        load_dataset(str(tmp_path / 'absent'))
+
+
+def test_write_checks_first(written, tmp_path):
+    ds = written[0]
+    with pytest.raises(ValueError, match="format 'colmap': expected one of blender, neus"):
+        write_dataset(ds, str(tmp_path / 'out'), 'colmap')
+    bad_c2w = ds.c2w.copy()
+    bad_c2w[1, :3, :3] *= 2.0
+    bad = Dataset(**{**vars(ds), 'c2w': bad_c2w})
+    with pytest.raises(ValueError, match=r"c2w\[1\]: camera matrix is not a rotation"):
+        write_dataset(bad, str(tmp_path / 'out'), 'neus')
+    bad = Dataset(**{**vars(ds), 'masks': ds.masks[:, :-1]})
+    with pytest.raises(ValueError, match=r"masks: expected shape \(3, 12, 16\)"):
+        write_dataset(bad, str(tmp_path / 'out'), 'blender')
+    assert not (tmp_path / 'out').exists()
+
+    folder = mutable(written, tmp_path, 'neus')
+    before = {p: p.read_bytes() for p in folder.rglob('*') if p.is_file()}
+    shutil.copy(folder / 'image' / 'v0.png', folder / 'image' / 'zz.png')
+    with pytest.raises(ValueError, match="image: holds other images"):
+        write_dataset(ds, str(folder), 'neus')
+    assert all(p.read_bytes() == data for p, data in before.items())
