@@ -1,0 +1,109 @@
+"""Scene writer: Mitsuba parses the XML, and its sensor casts the dataset's rays."""
+import os
+import xml.etree.ElementTree as ET
+
+import mitsuba as mi
+import numpy as np
+import pytest
+import trimesh
+
+from reneus_mi.data import Dataset, write_dataset
+from reneus_mi.data.cameras import intrinsics, look_at
+from reneus_mi.scene import main, write_scene
+
+H, W = 12, 16
+
+
+def make_dataset(folder, ior=1.5) -> Dataset:
+    """One view of a box container; off-centre principal point to test the sensor offsets."""
+    mesh = os.path.join(folder, 'meshes', 'box.ply')
+    os.makedirs(os.path.dirname(mesh), exist_ok=True)
+    trimesh.creation.box(extents=(1.0, 0.8, 0.6)).apply_translation((0.2, -0.1, 0.05)).export(mesh)
+    return Dataset(images=np.full((1, H, W, 3), 0.5, np.float32), masks=np.ones((1, H, W), bool),
+                   K=intrinsics(15.0, 15.0, 9.25, 4.5)[None],
+                   c2w=look_at((2.5, -1.5, 1.2), target=(0.1, 0.0, 0.1))[None],
+                   names=['a.png'], root=str(folder), container=mesh, ior=ior)
+
+
+def test_path_scene_loads_and_renders(tmp_path):
+    ds = make_dataset(tmp_path)
+    xml = tmp_path / 'scenes' / 'scene.xml'
+    os.makedirs(xml.parent)
+    write_scene(ds, str(xml), integrator='path', max_depth=6)
+    root = ET.parse(xml).getroot()
+    assert root.get('version') == '3.0.0'
+    assert root.find('shape/string').get('value') == os.path.join('..', 'meshes', 'box.ply')
+    assert [(e.tag, e.get('name')) for e in root.find('integrator')] == [('integer', 'max_depth')]
+
+    scene = mi.load_file(str(xml))
+    params = mi.traverse(scene)
+    assert params['container.bsdf.eta'] == pytest.approx(1.5)
+    sensor = scene.sensors()[0]
+    assert tuple(sensor.film().size()) == (W, H)
+
+    # Pixel-centre rays of the sensor are the dataset's rays.
+    ys, xs = np.mgrid[:H, :W]
+    px = np.stack([xs.ravel(), ys.ravel()], axis=1)
+    pos = mi.Point2f(mi.Float((px[:, 0] + 0.5) / W), mi.Float((px[:, 1] + 0.5) / H))
+    ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+    o, d = ds.rays(0, px)
+    assert np.abs(np.array(ray.d).T - d).max() < 1e-5
+    # Mitsuba starts rays on the near-clip plane: the origin moves along the ray.
+    offset = np.array(ray.o).T - o
+    assert np.linalg.norm(np.cross(offset, d), axis=1).max() < 1e-5
+    assert np.all(np.einsum('ij,ij->i', offset, d) < 0.1)
+
+    # A dielectric in a uniform environment conserves energy: the image is the ambient 0.8.
+    image = np.array(mi.render(scene, spp=32, seed=0))
+    assert image.shape == (H, W, 3)
+    assert abs(image.mean() - 0.8) < 0.02
+
+
+def test_reneus_integrator_properties(tmp_path):
+    ds = make_dataset(tmp_path, ior=None)
+    xml = tmp_path / 'scene.xml'
+    with pytest.warns(UserWarning, match="states no container IOR; using 1.45"):
+        write_scene(ds, str(xml), max_depth=3, upsample_s=64.0, aovs=True, field='neus')
+    root = ET.parse(xml).getroot()
+    assert root.find('shape/bsdf/float[@name="int_ior"]').get('value') == '1.45'
+    integ = root.find('integrator')
+    assert integ.get('type') == 'reneus' and integ.get('id') == 'field'
+    props = {e.get('name'): (e.tag, e.attrib) for e in integ}
+    assert props['dataset'][1]['value'] == str(tmp_path)
+    centre, radius = ds.normalization()
+    assert np.allclose([float(props['field_center'][1][a]) for a in 'xyz'], centre)
+    assert np.allclose(centre, (0.2, -0.1, 0.05))
+    assert float(props['field_scale'][1]['value']) == pytest.approx(radius)
+    assert [props[k][0] for k in ('max_depth', 'upsample_s', 'aovs', 'field')] == [
+        'integer', 'float', 'boolean', 'string']
+    assert props['aovs'][1]['value'] == 'true'
+
+
+def test_bad_settings_write_nothing(tmp_path):
+    ds = make_dataset(tmp_path)
+    xml = tmp_path / 'scene.xml'
+    with pytest.raises(ValueError, match=r"integrator setting spp=\[1\]: expected a bool"):
+        write_scene(ds, str(xml), spp=[1])
+    with pytest.raises(ValueError, match=r"integrator settings \['field_scale'\]: set by "
+                                         "write_scene"):
+        write_scene(ds, str(xml), field_scale=2.0)
+    no_box = Dataset(**{**vars(ds), 'container': None})
+    with pytest.raises(ValueError, match="dataset has no container mesh"):
+        write_scene(no_box, str(xml), integrator='path')
+    assert not xml.exists()
+
+
+def test_cli(tmp_path, capsys):
+    ds = make_dataset(tmp_path / 'src')
+    write_dataset(ds, str(tmp_path / 'data'), 'neus')
+    xml = tmp_path / 'scene.xml'
+    main([str(tmp_path / 'data'), '-o', str(xml), '--integrator', 'path',
+          '--set', 'max_depth=5', '--set', 'hide_emitters=true'])
+    integ = ET.parse(xml).getroot().find('integrator')
+    assert [(e.tag, e.get('value')) for e in integ] == [('integer', '5'), ('boolean', 'true')]
+    assert tuple(mi.load_file(str(xml)).sensors()[0].film().size()) == (W, H)
+
+    with pytest.raises(SystemExit) as exit_info:
+        main([str(tmp_path / 'absent'), '-o', str(tmp_path / 'other.xml')])
+    assert exit_info.value.code == 2 and 'dataset folder is missing' in capsys.readouterr().err
+    assert not (tmp_path / 'other.xml').exists()
