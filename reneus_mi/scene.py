@@ -1,7 +1,7 @@
 """Mitsuba 3 scene of a dataset: the container, the lighting and one camera.
 
 :func:`write_scene` writes an XML file (format version 3.0.0) that
-``mi.load_file`` reads: the container mesh as a smooth ``dielectric``
+``mi.load_file`` reads: the container mesh (if the dataset has one) as a smooth ``dielectric``
 (``int_ior`` from the dataset, else 1.45 like the paper's synthetic data), the
 paper's homogeneous ambient light (a ``constant`` emitter of radiance 0.8), a
 ``perspective`` sensor reproducing the first view's pixel rays, and the
@@ -97,14 +97,12 @@ def _relative(path: str, xml_dir: str) -> str:
 def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus',
               **integrator_settings) -> ET.ElementTree:
     """Build the scene of :func:`write_scene`; file paths relative to ``xml_dir``."""
-    if ds.container is None:
-        raise ValueError(f"{ds.root}: dataset has no container mesh; a scene needs one")
-    shape_type = mesh_type(ds.container)
     clash = [k for k in integrator_settings if integrator == 'reneus' and k in _RESERVED]
     if clash:
         raise ValueError(f"integrator settings {clash}: set by write_scene from the dataset")
+    shape_type = None if ds.container is None else mesh_type(ds.container)
     ior = ds.ior
-    if ior is None:
+    if ior is None and ds.container is not None:
         warnings.warn(f"{ds.root}: dataset states no container IOR; using {DEFAULT_IOR}")
         ior = DEFAULT_IOR
 
@@ -137,12 +135,13 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus',
     emitter = ET.SubElement(scene, 'emitter', type='constant')
     ET.SubElement(emitter, 'rgb', name='radiance', value=_num(AMBIENT_RADIANCE))
 
-    shape = ET.SubElement(scene, 'shape', type=shape_type, id='container')
-    ET.SubElement(shape, 'string', name='filename', value=_relative(ds.container, xml_dir))
-    bsdf = ET.SubElement(shape, 'bsdf', type='dielectric')
-    ET.SubElement(bsdf, 'float', name='int_ior', value=_num(ior))
-    # The paper's outside medium is air with an index of exactly 1.
-    ET.SubElement(bsdf, 'float', name='ext_ior', value='1.0')
+    if ds.container is not None:
+        shape = ET.SubElement(scene, 'shape', type=shape_type, id='container')
+        ET.SubElement(shape, 'string', name='filename', value=_relative(ds.container, xml_dir))
+        bsdf = ET.SubElement(shape, 'bsdf', type='dielectric')
+        ET.SubElement(bsdf, 'float', name='int_ior', value=_num(ior))
+        # The paper's outside medium is air with an index of exactly 1.
+        ET.SubElement(bsdf, 'float', name='ext_ior', value='1.0')
 
     tree = ET.ElementTree(scene)
     ET.indent(tree)
@@ -154,8 +153,9 @@ def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus',
     """Write the Mitsuba 3 scene XML of ``ds`` to ``path``.
 
     ``integrator_settings`` become properties of the integrator, typed by
-    their Python type (bool, int, float, str). Nothing is written when
-    anything is wrong.
+    their Python type (bool, int, float, str). A dataset without a container
+    (the paper's "w/o box" data) gives a scene without one. Nothing is
+    written when anything is wrong.
     """
     xml_dir = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(xml_dir):
@@ -195,8 +195,11 @@ def main(argv: list[str] | None = None) -> None:
                              'as such, anything else is a string (repeatable)')
     args = parser.parse_args(argv)
     try:
-        write_scene(load_dataset(args.data_dir), args.output, integrator=args.integrator,
-                    **dict(args.settings))
+        ds = load_dataset(args.data_dir, need_container=False)
+        if ds.container is None:
+            warnings.warn(f"{args.data_dir}: dataset names no container mesh; "
+                          "the scene has none")
+        write_scene(ds, args.output, integrator=args.integrator, **dict(args.settings))
     except ValueError as err:
         parser.exit(2, f"error: {err}\n")
 

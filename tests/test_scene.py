@@ -87,10 +87,18 @@ def test_bad_settings_write_nothing(tmp_path):
     with pytest.raises(ValueError, match=r"integrator settings \['field_scale'\]: set by "
                                          "write_scene"):
         write_scene(ds, str(xml), field_scale=2.0)
-    no_box = Dataset(**{**vars(ds), 'container': None})
-    with pytest.raises(ValueError, match="dataset has no container mesh"):
-        write_scene(no_box, str(xml), integrator='path')
     assert not xml.exists()
+
+
+def test_scene_without_container(tmp_path):
+    """The paper's w/o box data: no shape, and no complaint about the IOR."""
+    ds = make_dataset(tmp_path)
+    no_box = Dataset(**{**vars(ds), 'container': None, 'ior': None, 'scale_mat': np.eye(4)})
+    xml = tmp_path / 'scene.xml'
+    write_scene(no_box, str(xml), integrator='path')
+    scene = mi.load_file(str(xml))
+    assert len(scene.shapes()) == 0
+    assert np.allclose(np.array(mi.render(scene, spp=1)), 0.8)
 
 
 def test_cli(tmp_path, capsys):
