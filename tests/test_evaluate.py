@@ -1,0 +1,148 @@
+"""Chamfer-L1 x100 and F-score against analytic values, and the evaluation CLI."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+import reneus_mi  # noqa: F401  (sets the variant)
+from reneus_mi.evaluate import chamfer, load_mesh, main
+
+
+def square(n=20):
+    """The unit square in the z = 0 plane, ``n`` x ``n`` cells of two triangles."""
+    t = np.linspace(0.0, 1.0, n + 1)
+    x, y = np.meshgrid(t, t, indexing='ij')
+    verts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing='ij')
+    v00 = (i * (n + 1) + j).ravel()
+    v10, v01, v11 = v00 + n + 1, v00 + 1, v00 + n + 2
+    faces = np.concatenate([np.stack([v00, v10, v11], 1), np.stack([v00, v11, v01], 1)])
+    return trimesh.Trimesh(verts, faces, process=False)
+
+
+def shifted(mesh, offset):
+    out = mesh.copy()
+    out.apply_translation(offset)
+    return out
+
+
+def test_identical_meshes_score_zero_and_full_fscore():
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
+    r = chamfer(sphere, sphere.copy())
+    assert r['chamfer'] == 0.0 and r['accuracy'] == 0.0 and r['completeness'] == 0.0
+    assert r['fscore'] == 1.0 and r['precision'] == 1.0 and r['recall'] == 1.0
+    assert r['n_points'] == 10000 and r['n_pred'] == 10000
+
+
+def test_paper_sample_count():
+    # N = max(10000, 0.2 num_v): 0.2 * 301^2 vertices = 18120 points.
+    gt = square(300)
+    r = chamfer(square(10), gt)
+    assert r['n_points'] == int(0.2 * len(gt.vertices)) == 18120
+
+
+@pytest.mark.parametrize('d', [0.003, 0.015, 0.02])
+def test_plane_shifted_along_its_normal(d):
+    # Same triangles, same seed: every sample's nearest neighbour is its own
+    # copy at distance exactly d, so Chamfer x100 = 100 d, and the F-score at
+    # threshold 0.01 is 1 below it and 0 above it.
+    gt = square()
+    r = chamfer(shifted(gt, [0, 0, d]), gt, threshold=0.01)
+    assert r['chamfer'] == pytest.approx(100 * d, rel=1e-6)
+    assert r['accuracy'] == pytest.approx(d, rel=1e-6)
+    assert r['completeness'] == pytest.approx(d, rel=1e-6)
+    expected_f = 1.0 if d < 0.01 else 0.0
+    assert r['fscore'] == expected_f and r['precision'] == expected_f and r['recall'] == expected_f
+
+
+def test_unit_sphere_against_radius_1_01():
+    # The surfaces are 0.01 apart everywhere: Chamfer x100 = 1.
+    gt = trimesh.creation.icosphere(subdivisions=5, radius=1.0)
+    pred = gt.copy()
+    pred.apply_scale(1.01)
+    assert chamfer(pred, gt)['chamfer'] == pytest.approx(1.0, rel=0.05)
+
+
+def test_sampling_floor_of_independent_triangulations():
+    # Two triangulations of the unit sphere sample independently: the mean
+    # nearest-neighbour distance of N uniform points on area A is 0.5 sqrt(A / N).
+    gt = trimesh.creation.icosphere(subdivisions=5, radius=1.0)
+    pred = trimesh.creation.uv_sphere(radius=1.0, count=[128, 128])
+    n = 40000
+    r = chamfer(pred, gt, n_points=n)
+    assert r['chamfer'] == pytest.approx(100 * 0.5 * np.sqrt(4 * np.pi / n), rel=0.05)
+
+
+def test_seed_fixes_the_numbers():
+    gt = trimesh.creation.icosphere(subdivisions=5, radius=1.0)
+    pred = trimesh.creation.uv_sphere(radius=1.0, count=[64, 64])
+    assert chamfer(pred, gt, seed=3) == chamfer(pred, gt, seed=3)
+    assert chamfer(pred, gt, seed=3)['chamfer'] != chamfer(pred, gt, seed=4)['chamfer']
+
+
+def test_container_drops_fake_walls():
+    # The prediction is the object plus a wall far outside the container: with
+    # the container given, only the object's points are measured.
+    gt = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
+    wall = shifted(trimesh.creation.box(extents=(0.05, 1.0, 1.0)), [2.0, 0, 0])
+    pred = trimesh.util.concatenate([gt, wall])
+    container = trimesh.creation.box(extents=(1.2, 1.2, 1.2))
+    without = chamfer(pred, gt)
+    assert without['accuracy'] > 0.2
+    r = chamfer(pred, gt, container=container)
+    share = gt.area / pred.area
+    assert r['n_pred'] == pytest.approx(share * r['n_points'], rel=0.05)
+    # What is left is the object alone, down to the sampling floor 0.5 sqrt(A / N) ≈ 0.007.
+    assert r['accuracy'] < 0.01
+
+
+def write(mesh, path):
+    mesh.export(path)
+    return str(path)
+
+
+def test_cli_prints_and_writes_the_numbers(tmp_path):
+    gt = square()
+    pred = write(shifted(gt, [0, 0, 0.02]), tmp_path / 'pred.ply')
+    out = tmp_path / 'out.json'
+    proc = subprocess.run([sys.executable, '-m', 'reneus_mi.evaluate', pred, write(gt, tmp_path / 'gt.ply'),
+                           '--postprocess', 'none', '--json', str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = dict(line.rsplit('  ', 1) for line in proc.stdout.strip().splitlines())
+    lines = {k.strip(): v.strip() for k, v in lines.items()}
+    assert float(lines['Chamfer-L1 x100']) == pytest.approx(2.0, rel=1e-4)
+    assert float(lines['F-score @ 0.01']) == 0.0
+    assert lines['post-processing'] == 'none'
+    saved = json.loads(out.read_text())
+    assert saved['chamfer'] == pytest.approx(2.0, rel=1e-4) and saved['postprocess'] == 'none'
+
+
+def test_cli_bad_files_name_the_file(tmp_path, capsys):
+    gt = write(trimesh.creation.icosphere(subdivisions=2), tmp_path / 'gt.ply')
+    empty = tmp_path / 'empty.ply'
+    empty.write_text('')
+    for bad in (str(empty), str(tmp_path / 'missing.obj')):
+        with pytest.raises(SystemExit) as e:
+            main([bad, gt])
+        assert bad in str(e.value)
+    with pytest.raises(SystemExit) as e:
+        main([gt, gt, '--postprocess', 'crop'])
+    assert '--container' in str(e.value)
+    # An open container has no inside.
+    open_box = trimesh.creation.box()
+    open_box.update_faces(np.arange(len(open_box.faces)) > 0)
+    path = write(open_box, tmp_path / 'open.ply')
+    with pytest.raises(SystemExit) as e:
+        main([gt, gt, '--container', path])
+    assert path in str(e.value) and 'closed' in str(e.value)
+
+
+def test_load_mesh_rejects_a_point_cloud(tmp_path):
+    path = tmp_path / 'cloud.ply'
+    trimesh.PointCloud(np.random.default_rng(0).random((10, 3))).export(path)
+    with pytest.raises(ValueError, match='cloud.ply'):
+        load_mesh(path)

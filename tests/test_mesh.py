@@ -1,0 +1,113 @@
+"""SDF grids, Marching Cubes extraction and the post-processing rules."""
+import numpy as np
+import pytest
+import trimesh
+
+import reneus_mi  # noqa: F401  (sets the variant)
+from reneus_mi.evaluate import chamfer
+from reneus_mi.fields.analytic import SphereField, TorusField
+from reneus_mi.mesh import extract_mesh, inside, postprocess, sdf_grid
+
+
+def sphere(radius, center, subdivisions):
+    out = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    out.apply_translation(center)
+    return out
+
+
+def test_sdf_grid_index_order_and_chunking():
+    # A non-cubic grid with an off-centre torus: [i, j, k] must be (x, y, z),
+    # whatever the chunk size.
+    field = TorusField(major=0.4, minor=0.15, center=(0.1, -0.2, 0.05))
+    lo, hi, res = np.array([-1.0, -0.8, -0.5]), np.array([1.0, 0.6, 0.7]), (9, 6, 5)
+    grid = sdf_grid(field, lo, hi, res, chunk=7)
+    axes = [np.linspace(lo[a], hi[a], res[a]) for a in range(3)]
+    x, y, z = np.meshgrid(*axes, indexing='ij')
+    x, y, z = x - 0.1, y + 0.2, z - 0.05
+    expected = np.sqrt((np.sqrt(x**2 + y**2) - 0.4) ** 2 + z**2) - 0.15
+    assert grid.shape == res
+    np.testing.assert_allclose(grid, expected, atol=1e-6)
+    np.testing.assert_array_equal(sdf_grid(field, lo, hi, res), grid)
+
+
+def test_sphere_extraction_matches_an_icosphere():
+    mesh = extract_mesh(SphereField(radius=0.5), -0.6, 0.6, 64)
+    # Vertices sit on the sphere to well under the voxel size (0.019), and
+    # outward normals give a positive volume.
+    assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 0.5).max() < 2e-4
+    assert mesh.is_watertight
+    assert mesh.volume == pytest.approx(4 / 3 * np.pi * 0.5**3, rel=2e-3)
+    # Independent triangulations: Chamfer x100 sits at the sampling floor
+    # 100 * 0.5 sqrt(pi / N) = 0.28 for N = 1e5, plus the faceting.
+    n = 100000
+    r = chamfer(mesh, sphere(0.5, (0, 0, 0), 5), n_points=n)
+    assert r['chamfer'] < 1.1 * 100 * 0.5 * np.sqrt(np.pi / n)
+
+
+def test_to_world_is_honoured():
+    field = SphereField(radius=0.5)
+    local = extract_mesh(field, -0.6, 0.6, 32)
+    to_world = np.array([[0, -2, 0, 1], [2, 0, 0, 2], [0, 0, 2, 3], [0, 0, 0, 1.0]])
+    world = extract_mesh(field, -0.6, 0.6, 32, to_world=to_world)
+    np.testing.assert_allclose(world.vertices, local.vertices @ to_world[:3, :3].T + [1, 2, 3], atol=1e-12)
+    assert world.volume == pytest.approx(8 * local.volume, rel=1e-9)
+    # A mirror keeps the normals outwards.
+    mirrored = extract_mesh(field, -0.6, 0.6, 32, to_world=np.diag([-1.0, 1.0, 1.0, 1.0]))
+    assert mirrored.volume == pytest.approx(local.volume, rel=1e-9)
+
+
+def test_no_zero_crossing_is_an_error():
+    with pytest.raises(ValueError, match='no zero crossing'):
+        extract_mesh(SphereField(radius=0.5), 0.6, 0.9, 8)
+    with pytest.raises(ValueError, match='resolution'):
+        sdf_grid(SphereField(radius=0.5), -1, 1, 1)
+
+
+def test_largest_keeps_the_component_with_most_vertices():
+    # The big sphere has fewer vertices: the rule counts vertices, not area.
+    big = sphere(1.0, (3, 0, 0), 1)
+    dense = sphere(0.1, (0, 0, 0), 3)
+    for parts in ([big, dense], [dense, big]):
+        kept = postprocess(trimesh.util.concatenate(parts), 'largest')
+        assert len(kept.vertices) == len(dense.vertices) == 642
+        assert len(kept.faces) == len(dense.faces)
+        np.testing.assert_allclose(kept.vertices.mean(axis=0), 0.0, atol=1e-9)
+
+
+def test_crop_removes_what_lies_outside_the_container():
+    container = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    inner, outer = sphere(0.2, (0, 0, 0), 3), sphere(0.2, (2, 0, 0), 3)
+    straddling = sphere(0.2, (0.5, 0, 0), 3)
+    cropped = postprocess(trimesh.util.concatenate([inner, outer, straddling]), 'crop', container)
+    assert np.all(np.abs(cropped.vertices) < 0.5)
+    # The inner sphere and the half of the straddling one with x < 0.5.
+    n_half = np.sum(np.all(straddling.vertices[straddling.faces][..., 0] < 0.5, axis=1))
+    assert len(cropped.faces) == len(inner.faces) + n_half
+    assert postprocess(inner, 'none').vertices.tolist() == inner.vertices.tolist()
+    with pytest.raises(ValueError, match='container'):
+        postprocess(inner, 'crop')
+    with pytest.raises(ValueError, match='largest, crop, none'):
+        postprocess(inner, 'biggest')
+
+
+def test_inside_against_analytic_shapes():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1.0, 1.0, (20000, 3))
+    # A rotated box: inside when the rotated-back point is in the box.
+    rotation = trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])
+    box = trimesh.creation.box(extents=(1.2, 0.8, 1.0), transform=rotation)
+    local = points @ rotation[:3, :3]
+    expected = np.all(np.abs(local) < [0.6, 0.4, 0.5], axis=1)
+    assert np.array_equal(inside(points, box), expected)
+    # An icosphere, away from its faceted surface.
+    ball = sphere(0.7, (0, 0, 0), 3)
+    r = np.linalg.norm(points, axis=1)
+    clear = np.abs(r - 0.7) > 0.01
+    assert np.array_equal(inside(points, ball)[clear], (r < 0.7)[clear])
+
+
+def test_inside_rejects_an_open_container():
+    open_box = trimesh.creation.box()
+    open_box.update_faces(np.arange(len(open_box.faces)) > 0)
+    with pytest.raises(ValueError, match='not closed'):
+        inside(np.zeros((1, 3)), open_box)
