@@ -97,6 +97,7 @@ def _relative(path: str, xml_dir: str) -> str:
 def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus',
               **integrator_settings) -> ET.ElementTree:
     """Build the scene of :func:`write_scene`; file paths relative to ``xml_dir``."""
+    ds.validate()
     clash = [k for k in integrator_settings if integrator == 'reneus' and k in _RESERVED]
     if clash:
         raise ValueError(f"integrator settings {clash}: set by write_scene from the dataset")

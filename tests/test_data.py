@@ -3,6 +3,7 @@ import json
 import os
 import shutil
 
+import mitsuba as mi
 import numpy as np
 import pytest
 import trimesh
@@ -10,7 +11,7 @@ import trimesh
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import OPENGL_FROM_OPENCV, intrinsics, look_at
 from reneus_mi.data.container import container_masks
-from reneus_mi.data.images import write_png
+from reneus_mi.data.images import read_image, write_png
 
 H, W = 12, 16
 BOX = (1.0, 0.8, 0.6)
@@ -80,6 +81,19 @@ def test_rays_follow_K():
     p_cam = np.einsum('ij,mj->mi', np.linalg.inv(c2w[0]), np.c_[o + 2.0 * d, np.ones(3)])[:, :3]
     uv = np.einsum('ij,mj->mi', K[0], p_cam)
     assert np.abs(uv[:, :2] / uv[:, 2:] - (px + 0.5)).max() < 1e-9
+
+
+def test_image_encodings(tmp_path):
+    """Linear EXR comes back sRGB-encoded; grey PNG becomes RGB; alpha is kept apart."""
+    mi.Bitmap(np.full((2, 3, 3), 0.2, np.float32)).write(str(tmp_path / 'lin.exr'))
+    rgb, alpha = read_image(str(tmp_path / 'lin.exr'))
+    assert alpha is None and np.allclose(rgb, 1.055 * 0.2 ** (1 / 2.4) - 0.055, atol=1e-5)
+    write_png(str(tmp_path / 'grey.png'), np.full((2, 3), 0.4))
+    rgb, alpha = read_image(str(tmp_path / 'grey.png'))
+    assert alpha is None and rgb.shape == (2, 3, 3) and np.allclose(rgb, 102 / 255)
+    write_png(str(tmp_path / 'rgba.png'), np.dstack([np.full((2, 3, 3), 0.6), np.eye(2, 3)]))
+    rgb, alpha = read_image(str(tmp_path / 'rgba.png'))
+    assert np.allclose(rgb, 153 / 255) and np.array_equal(alpha, np.eye(2, 3))
 
 
 def test_blender_opengl_convention(tmp_path):
@@ -197,6 +211,14 @@ def test_neus_errors(written, tmp_path):
     with pytest.raises(ValueError, match=r"v2.png: image is 18x12, but .*v0.png is 16x12"):
         load_dataset(str(folder))
     shutil.copy(folder / 'image' / 'v1.png', folder / 'image' / 'v2.png')
+    write_png(str(folder / 'mask' / 'v1.png'), np.ones((H - 1, W)))
+    with pytest.raises(ValueError, match=r"mask of .*v1.png: is 16x11, expected the image size "
+                                         "16x12"):
+        load_dataset(str(folder))
+    os.remove(folder / 'mask' / 'v1.png')
+    with pytest.raises(ValueError, match=r"mask: has 2 masks, but .*cameras_sphere.npz has 3"):
+        load_dataset(str(folder))
+    shutil.copy(written[1] / 'neus' / 'mask' / 'v1.png', folder / 'mask')
 
     cams = dict(np.load(folder / 'cameras_sphere.npz'))
     cams['world_mat_1'] = np.diag([1.0, 1.0, 0.0, 1.0])

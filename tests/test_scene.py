@@ -9,7 +9,7 @@ import trimesh
 
 from reneus_mi.data import Dataset, write_dataset
 from reneus_mi.data.cameras import intrinsics, look_at
-from reneus_mi.scene import main, write_scene
+from reneus_mi.scene import main, sensor_dict, write_scene
 
 H, W = 12, 16
 
@@ -41,17 +41,18 @@ def test_path_scene_loads_and_renders(tmp_path):
     sensor = scene.sensors()[0]
     assert tuple(sensor.film().size()) == (W, H)
 
-    # Pixel-centre rays of the sensor are the dataset's rays.
+    # Pixel-centre rays of the sensor (and of sensor_dict's) are the dataset's rays.
     ys, xs = np.mgrid[:H, :W]
     px = np.stack([xs.ravel(), ys.ravel()], axis=1)
     pos = mi.Point2f(mi.Float((px[:, 0] + 0.5) / W), mi.Float((px[:, 1] + 0.5) / H))
-    ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
     o, d = ds.rays(0, px)
-    assert np.abs(np.array(ray.d).T - d).max() < 1e-5
-    # Mitsuba starts rays on the near-clip plane: the origin moves along the ray.
-    offset = np.array(ray.o).T - o
-    assert np.linalg.norm(np.cross(offset, d), axis=1).max() < 1e-5
-    assert np.all(np.einsum('ij,ij->i', offset, d) < 0.1)
+    for cam in (sensor, mi.load_dict(sensor_dict(ds.K[0], ds.c2w[0], W, H))):
+        ray, _ = cam.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+        assert np.abs(np.array(ray.d).T - d).max() < 1e-5
+        # Mitsuba starts rays on the near-clip plane: the origin moves along the ray.
+        offset = np.array(ray.o).T - o
+        assert np.linalg.norm(np.cross(offset, d), axis=1).max() < 1e-5
+        assert np.all(np.einsum('ij,ij->i', offset, d) < 0.1)
 
     # A dielectric in a uniform environment conserves energy: the image is the ambient 0.8.
     image = np.array(mi.render(scene, spp=32, seed=0))
