@@ -1,0 +1,258 @@
+"""Objects for the synthetic datasets, made procedurally (nothing is downloaded).
+
+Every object is a closed :class:`trimesh.Trimesh` with per-vertex colours. The
+colours are display values (8-bit, gamma 2.2, like a photograph); the renderer
+turns them into linear albedo. The catalogue (:data:`OBJECTS`):
+
+- ``insect``: a body of three blended ellipsoids with six thin, jointed legs
+  and two antennae, banded: the paper's hard case (thin structures);
+- ``statuette``: a smooth, texture-less figure of blended spheres and limbs on
+  a round base, one uniform colour;
+- ``vase``: a hollow surface of revolution (concave inside), patterned;
+- ``sphere``: a patterned sphere, for tests.
+
+Shapes built from blended primitives are signed distance functions written in
+Dr.Jit and meshed with :func:`reneus_mi.mesh.extract_mesh` (Marching Cubes), so
+that overlapping parts become one clean, watertight surface.
+
+:func:`normalize` centres an object, fits the glass box around it with a margin
+and scales both into the unit sphere, as in the paper's Dataset section.
+"""
+from __future__ import annotations
+
+import functools
+import os
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import trimesh
+
+from reneus_mi.fields.base import Field
+from reneus_mi.mesh import extract_mesh
+
+
+# ----------------------------------------------------------------- SDF parts
+def _ellipsoid(p, center, radii):
+    """Approximate distance to an ellipsoid: exact zero set, scaled by the
+    smallest radius so that it stays close to a distance near the surface."""
+    q = (p - mi.Vector3f(*center)) / mi.Vector3f(*radii)
+    return (dr.norm(q) - 1.0) * min(radii)
+
+
+def _capsule(p, a, b, radius):
+    a, b = mi.Vector3f(*a), mi.Vector3f(*b)
+    pa, ba = p - a, b - a
+    h = dr.clip(dr.dot(pa, ba) / dr.dot(ba, ba), 0.0, 1.0)
+    return dr.norm(pa - ba * h) - radius
+
+
+def _round_cylinder(p, center, radius, half_height, rounding):
+    """Vertical cylinder (axis z) with edges rounded by ``rounding``."""
+    q = p - mi.Vector3f(*center)
+    dx = dr.sqrt(q.x * q.x + q.y * q.y) - radius + rounding
+    dz = dr.abs(q.z) - half_height + rounding
+    outside = dr.sqrt(dr.square(dr.maximum(dx, 0.0)) + dr.square(dr.maximum(dz, 0.0)))
+    return outside + dr.minimum(dr.maximum(dx, dz), 0.0) - rounding
+
+
+def _smooth_union(a, b, k):
+    """Polynomial smooth minimum: blends the parts over a width ``k`` instead
+    of leaving a crease where they meet."""
+    h = dr.clip(0.5 + 0.5 * (b - a) / k, 0.0, 1.0)
+    return dr.lerp(b, a, h) - k * h * (1.0 - h)
+
+
+class _ProceduralSDF(Field):
+    """A :class:`Field` whose SDF is a Python function of a Dr.Jit point, so that
+    the project's Marching Cubes (:func:`extract_mesh`) meshes it."""
+
+    def __init__(self, distance):
+        self._distance = distance
+
+    def geometry(self, x):
+        return self._distance(mi.Vector3f(x)), []
+
+
+def _mesh_sdf(distance, lo, hi, pitch: float) -> trimesh.Trimesh:
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    resolution = np.ceil((hi - lo) / pitch).astype(np.int64) + 1
+    with dr.suspend_grad():
+        mesh = extract_mesh(_ProceduralSDF(distance), lo, hi, resolution)
+    # Marching Cubes emits duplicate vertices at grid edges shared by cells.
+    mesh.merge_vertices()
+    return mesh
+
+
+# ------------------------------------------------------------------ textures
+def _two_tone(t: np.ndarray, color0, color1) -> np.ndarray:
+    """RGBA uint8 colours blending ``color0`` (t = 0) and ``color1`` (t = 1)."""
+    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)[:, None]
+    rgb = (1.0 - t) * np.asarray(color0, dtype=np.float64) + t * np.asarray(color1, dtype=np.float64)
+    alpha = np.full((len(rgb), 1), 255.0)
+    return np.round(np.concatenate([rgb, alpha], axis=1)).astype(np.uint8)
+
+
+def procedural_colors(vertices: np.ndarray, period: float = 0.25,
+                      color0=(60, 90, 160), color1=(235, 215, 150)) -> np.ndarray:
+    """A smooth 3D checker pattern (RGBA uint8 per vertex), for meshes without colours.
+
+    ``period`` is the size of one light/dark cycle in the mesh's units.
+    """
+    w = 2.0 * np.pi / period
+    v = np.asarray(vertices, dtype=np.float64)
+    t = 0.5 + 0.5 * np.sin(w * v[:, 0]) * np.sin(w * v[:, 1]) * np.sin(w * v[:, 2])
+    return _two_tone(t, color0, color1)
+
+
+# ------------------------------------------------------------------- objects
+# Legs of the insect: hip on the thorax, knee up and out, foot down below the
+# body, so that each leg is a thin bent tube that stands free of the body.
+_LEGS = (  # hip x, knee (dx, y, z), foot (dx, y, z)
+    (0.22, (0.12, 0.36, 0.20), (0.34, 0.52, -0.26)),
+    (0.12, (0.00, 0.40, 0.22), (0.02, 0.60, -0.26)),
+    (0.02, (-0.14, 0.36, 0.20), (-0.38, 0.54, -0.26)),
+)
+_FEMUR_RADIUS, _TIBIA_RADIUS, _ANTENNA_RADIUS = 0.024, 0.018, 0.013
+
+
+def _insect_distance(p):
+    body = _ellipsoid(p, (-0.36, 0.0, 0.06), (0.38, 0.18, 0.15))               # abdomen
+    body = _smooth_union(body, _ellipsoid(p, (0.12, 0.0, 0.07), (0.17, 0.12, 0.11)), 0.05)  # thorax
+    body = _smooth_union(body, _ellipsoid(p, (0.37, 0.0, 0.09), (0.10, 0.09, 0.085)), 0.03)  # head
+    for hip_x, (kx, ky, kz), (fx, fy, fz) in _LEGS:
+        for side in (-1.0, 1.0):
+            hip = (hip_x, 0.06 * side, 0.02)
+            knee = (hip_x + kx, ky * side, kz)
+            foot = (hip_x + fx, fy * side, fz)
+            leg = dr.minimum(_capsule(p, hip, knee, _FEMUR_RADIUS),
+                             _capsule(p, knee, foot, _TIBIA_RADIUS))
+            body = _smooth_union(body, leg, 0.02)
+    for side in (-1.0, 1.0):
+        base = (0.43, 0.04 * side, 0.14)
+        bend = (0.60, 0.14 * side, 0.32)
+        tip = (0.80, 0.30 * side, 0.30)
+        antenna = dr.minimum(_capsule(p, base, bend, _ANTENNA_RADIUS),
+                             _capsule(p, bend, tip, _ANTENNA_RADIUS))
+        body = _smooth_union(body, antenna, 0.015)
+    return body
+
+
+def insect() -> trimesh.Trimesh:
+    """Body along +x (head forward), six legs reaching below it, two antennae."""
+    mesh = _mesh_sdf(_insect_distance, (-0.80, -0.66, -0.32), (0.86, 0.66, 0.38), pitch=0.006)
+    # Bands across the body axis, like a wasp's, also on legs and antennae.
+    t = 0.5 + 0.5 * np.sin(2.0 * np.pi * mesh.vertices[:, 0] / 0.16)
+    mesh.visual.vertex_colors = _two_tone(t, (70, 40, 20), (230, 170, 40))
+    return mesh
+
+
+def _statuette_distance(p):
+    d = _round_cylinder(p, (0.0, 0.0, -0.56), 0.30, 0.06, 0.025)               # base
+    for center, radius in (((0.0, 0.0, -0.32), 0.17),                         # hips
+                           ((0.0, 0.0, -0.08), 0.19),                         # waist
+                           ((0.0, 0.02, 0.12), 0.17),                         # chest
+                           ((0.0, 0.04, 0.38), 0.11)):                        # head
+        d = _smooth_union(d, dr.norm(p - mi.Vector3f(*center)) - radius, 0.08)
+    # One arm raised, one lowered: a figure without a mirror symmetry, so that
+    # a flipped camera shows in the images.
+    d = _smooth_union(d, _capsule(p, (0.13, 0.0, 0.20), (0.30, 0.06, 0.46), 0.05), 0.05)
+    d = _smooth_union(d, _capsule(p, (-0.14, 0.0, 0.18), (-0.24, 0.06, -0.10), 0.05), 0.05)
+    return d
+
+
+def statuette() -> trimesh.Trimesh:
+    """A smooth figure on a round base, in one colour (no texture to match)."""
+    mesh = _mesh_sdf(_statuette_distance, (-0.36, -0.36, -0.66), (0.40, 0.36, 0.56), pitch=0.01)
+    mesh.visual.vertex_colors = _two_tone(np.zeros(len(mesh.vertices)), (205, 195, 180), (0, 0, 0))
+    return mesh
+
+
+def vase() -> trimesh.Trimesh:
+    """A hollow vase: outer wall, lip, inner wall and floor revolved about z."""
+    wall = 0.035
+    z_out = np.linspace(-0.5, 0.5, 80)
+    # A round belly, a narrow neck, a flared lip.
+    r_out = 0.22 + 0.12 * np.sin(np.pi * (z_out + 0.5) * 1.15) ** 2 \
+        - 0.10 * np.exp(-((z_out - 0.28) / 0.1) ** 2) + 0.06 * np.clip(z_out - 0.38, 0.0, None) / 0.12
+    z_in = z_out[::-1]
+    keep = z_in > -0.5 + 2.0 * wall
+    r_in = (r_out[::-1] - wall)[keep]
+    # A closed, counter-clockwise (r, z) profile that starts and ends on the
+    # axis: revolving it gives a closed mesh with outward normals.
+    profile = np.concatenate([[[0.0, -0.5]], np.c_[r_out, z_out],
+                              np.c_[r_in, z_in[keep]], [[0.0, z_in[keep][-1]]]])
+    mesh = trimesh.creation.revolve(profile, sections=128)
+    v = mesh.vertices
+    angle = np.arctan2(v[:, 1], v[:, 0])
+    t = 0.5 + 0.5 * np.sin(6.0 * angle) * np.sin(2.0 * np.pi * v[:, 2] / 0.25)
+    mesh.visual.vertex_colors = _two_tone(t, (40, 70, 150), (240, 235, 220))
+    return mesh
+
+
+def sphere() -> trimesh.Trimesh:
+    """A patterned sphere of radius 0.5."""
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
+    mesh.visual.vertex_colors = procedural_colors(mesh.vertices)
+    return mesh
+
+
+#: Objects by name: functions returning a new mesh.
+OBJECTS = {'insect': insect, 'statuette': statuette, 'vase': vase, 'sphere': sphere}
+
+
+@functools.lru_cache(maxsize=None)
+def _cached(name: str) -> trimesh.Trimesh:
+    return OBJECTS[name]()
+
+
+def load_object(name_or_path: str | os.PathLike) -> trimesh.Trimesh:
+    """Return a new coloured mesh: an object of :data:`OBJECTS` or a mesh file.
+
+    A file is read with trimesh; a texture is baked into vertex colours, and a
+    mesh without colours gets :func:`procedural_colors` (scaled to its size).
+    """
+    key = os.fspath(name_or_path)
+    if key in OBJECTS:
+        return _cached(key).copy()
+    if not os.path.isfile(key):
+        raise ValueError(f"{key!r}: neither an object name ({', '.join(OBJECTS)}) "
+                         f"nor an existing mesh file")
+    try:
+        mesh = trimesh.load(key, force='mesh')
+    except Exception as err:  # trimesh raises many types for unreadable files
+        raise ValueError(f"{key}: cannot be read as a mesh ({err})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"{key}: expected a triangle mesh, found no faces")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise ValueError(f"{key}: mesh has non-finite vertex positions")
+    if mesh.visual.kind == 'texture':
+        mesh.visual = mesh.visual.to_color()
+    elif mesh.visual.kind != 'vertex':
+        mesh.visual.vertex_colors = procedural_colors(mesh.vertices, period=0.25 * mesh.scale)
+    return mesh
+
+
+def normalize(mesh: trimesh.Trimesh, margin: float = 0.15,
+              radius: float = 0.95) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
+    """Centre ``mesh``, fit an axis-aligned box around it and scale both into a sphere.
+
+    The box is the object's bounding box grown on every side by ``margin``
+    times the object's largest half-extent (so a flat object still sits in a
+    thick slab of glass); the box's corners then lie on the sphere of ``radius``
+    (< 1: everything inside the unit sphere). Returns ``(object, box)``, new
+    meshes; the box is watertight with outward normals.
+    """
+    if not 0.0 <= margin:
+        raise ValueError(f"margin={margin}: expected a non-negative fraction of the object's size")
+    if not 0.0 < radius <= 1.0:
+        raise ValueError(f"radius={radius}: expected a value in (0, 1]")
+    lo, hi = mesh.bounds
+    center, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    box_half = half + margin * half.max()
+    scale = radius / np.linalg.norm(box_half)
+    obj = mesh.copy()
+    obj.apply_translation(-center)
+    obj.apply_scale(scale)
+    box = trimesh.creation.box(extents=2.0 * scale * box_half)
+    return obj, box

@@ -1,0 +1,304 @@
+"""Synthetic datasets rendered with Mitsuba's ``path`` integrator (never the ReNeuS model).
+
+The protocol is the paper's (Experiments, Dataset): a Lambertian, textured
+object sits at the centre of a solid glass box (dielectric, IOR 1.45) fitted to
+it with a margin, everything scaled inside the unit sphere; a constant
+environment of 0.8 (linear) lights it; cameras look at the origin from random
+points of the sphere of radius 5. Two subsets are rendered with the same
+cameras: ``box`` (object in glass) and ``nobox`` (object alone). Both carry the
+box masks (pixel-centre rays that hit the box). Images are stored as the
+photographs the model is fitted to: ``clip(linear, 0, 1) ** (1 / 2.2)``.
+
+Output of ``make_dataset(obj, DIR)``::
+
+    DIR/gt.ply            object, with linear albedo as the vertex attribute
+                          ``vertex_color`` (Mitsuba's name; trimesh reads the geometry)
+    DIR/box.ply           the glass box (unshared vertices: flat normals in any loader)
+    DIR/box/, DIR/nobox/  Blender format, with scene.xml (reneus_mi.scene.write_scene)
+    DIR/box_neus/, DIR/nobox_neus/   the same in NeuS format
+    DIR/synth.json        settings, spp, max_depth and the measured noise
+
+Command line: ``python -m reneus_mi.synth insect -o DIR --views 60 --res 800``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import mitsuba as mi
+import numpy as np
+import trimesh
+from tqdm import tqdm
+
+from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, focal_from_fov, intrinsics
+from reneus_mi.data.container import container_masks
+from reneus_mi.objects import OBJECTS, load_object, normalize
+
+#: Index of refraction of the glass box.
+IOR = 1.45
+#: Radiance of the constant environment (linear, every channel).
+ENVIRONMENT = 0.8
+#: Exponent of the display encoding of the stored images.
+GAMMA = 2.2
+#: Distance of the cameras from the origin.
+CAMERA_DISTANCE = 5.0
+#: Samples per pixel: about 0.003 per-pixel noise (display units) inside the
+#: box for the insect; each run measures and reports its own (synth.json).
+DEFAULT_SPP = 256
+#: Path vertices: camera -> glass -> glass -> object -> glass -> glass ->
+#: environment needs 6; 12 leaves room for three internal reflections.
+DEFAULT_MAX_DEPTH = 12
+#: Subsets a dataset can have.
+SUBSETS = ('box', 'nobox')
+
+# Rays traced per mi.render call: larger renders are split into passes of
+# this many lanes, which bounds the memory of one wavefront.
+_MAX_LANES = 2**24
+
+
+def sample_cameras(views: int, res: int, seed: int = 0,
+                   distance: float = CAMERA_DISTANCE) -> tuple[np.ndarray, np.ndarray]:
+    """Random cameras on the full sphere of ``distance``, looking at the origin.
+
+    Positions are uniform on the sphere (``seed`` fixes them); world z is the
+    image's up direction (y near the poles). The field of view is the cone
+    tangent to the unit sphere, so the whole scene is in every image. Returns
+    ``K`` (N,3,3) and OpenCV ``c2w`` (N,4,4).
+    """
+    if views < 1 or res < 1:
+        raise ValueError(f"views={views}, res={res}: expected positive numbers")
+    if distance <= 1.0:
+        raise ValueError(f"distance={distance}: cameras must be outside the unit sphere")
+    rng = np.random.default_rng(seed)
+    pos = rng.normal(size=(views, 3))
+    pos *= distance / np.linalg.norm(pos, axis=1, keepdims=True)
+    forward = -pos / distance
+    up = np.where(np.abs(forward[:, 2:]) > 0.99, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    down = np.cross(forward, right)
+    c2w = np.tile(np.eye(4), (views, 1, 1))
+    c2w[:, :3, 0], c2w[:, :3, 1], c2w[:, :3, 2], c2w[:, :3, 3] = right, down, forward, pos
+    focal = focal_from_fov(2.0 * np.arcsin(1.0 / distance), res)
+    K = np.tile(intrinsics(focal, focal, 0.5 * res, 0.5 * res), (views, 1, 1))
+    return K, c2w
+
+
+def _sensor(K: np.ndarray, c2w: np.ndarray, res: int) -> mi.Sensor:
+    """Mitsuba's perspective camera for an OpenCV pinhole with a centred principal point."""
+    if not np.allclose(K[:2, 2], 0.5 * res) or not np.isclose(K[0, 0], K[1, 1]):
+        raise ValueError(f"K={K.tolist()}: expected square pixels and the principal point at "
+                         f"the centre of the {res}x{res} image")
+    fov = np.degrees(2.0 * np.arctan(0.5 * res / K[0, 0]))
+    return mi.load_dict({
+        'type': 'perspective', 'fov': float(fov), 'fov_axis': 'x',
+        'to_world': mi.ScalarTransform4f(c2w @ MITSUBA_FROM_OPENCV),
+        # Stratified samples: a third of the independent sampler's noise at
+        # the same spp, inside the glass (measured, 256 spp).
+        'sampler': {'type': 'multijitter'},
+        # A box filter keeps each sample in its own pixel, as the model's
+        # pixel-centre rays assume (the default Gaussian blurs across pixels).
+        'film': {'type': 'hdrfilm', 'width': res, 'height': res, 'pixel_format': 'rgb',
+                 'rfilter': {'type': 'box'}},
+    })
+
+
+def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_DEPTH) -> dict:
+    """The Mitsuba scene: object (diffuse, vertex-colour albedo), glass box, environment."""
+    scene = {
+        'type': 'scene',
+        # Russian roulette off: it would add noise to exactly the long paths
+        # through the glass that the dataset is about.
+        'integrator': {'type': 'path', 'max_depth': max_depth, 'rr_depth': max_depth},
+        'environment': {'type': 'constant',
+                        'radiance': {'type': 'rgb', 'value': [ENVIRONMENT] * 3}},
+        'object': {'type': 'ply', 'filename': gt_mesh,
+                   'bsdf': {'type': 'diffuse', 'reflectance': {
+                       'type': 'mesh_attribute', 'name': 'vertex_color'}}},
+    }
+    if box_mesh is not None:
+        scene['box'] = {'type': 'ply', 'filename': box_mesh, 'face_normals': True,
+                        'bsdf': {'type': 'dielectric', 'int_ior': IOR, 'ext_ior': 1.0}}
+    return scene
+
+
+def render_view(scene: mi.Scene, K: np.ndarray, c2w: np.ndarray, res: int, spp: int,
+                seed: int) -> np.ndarray:
+    """Linear (res,res,3) float32 image of one camera, at ``spp`` samples per pixel."""
+    sensor = _sensor(K, c2w, res)
+    passes = max(1, -(-res * res * spp // _MAX_LANES))
+    counts = [spp // passes + (p < spp % passes) for p in range(passes)]
+    image = np.zeros((res, res, 3), np.float64)
+    for p, count in enumerate(counts):
+        # Every pass needs its own sample stream; seeds of different calls are
+        # kept apart by the caller's stride (see make_dataset).
+        img = mi.render(scene, sensor=sensor, spp=count, seed=seed + p)
+        image += np.asarray(img, np.float64) * (count / spp)
+    return image.astype(np.float32)
+
+
+def encode(linear: np.ndarray) -> np.ndarray:
+    """Display values of linear radiance: ``clip(x, 0, 1) ** (1 / 2.2)``, float32."""
+    return (np.clip(linear, 0.0, 1.0) ** (1.0 / GAMMA)).astype(np.float32)
+
+
+def write_object(mesh: trimesh.Trimesh, path: str) -> None:
+    """Write ``mesh`` as a PLY with its linear albedo in Mitsuba's ``vertex_color``."""
+    vertices = np.asarray(mesh.vertices, np.float32)
+    faces = np.asarray(mesh.faces, np.uint32)
+    # Vertex colours are display values (like a photograph of the material).
+    albedo = (np.asarray(mesh.visual.vertex_colors[:, :3], np.float64) / 255.0) ** GAMMA
+    shape = mi.Mesh('object', len(vertices), len(faces), has_vertex_normals=True)
+    params = mi.traverse(shape)
+    params['vertex_positions'] = mi.Float(vertices.ravel())
+    params['faces'] = mi.UInt32(faces.ravel())
+    params.update()
+    shape.recompute_vertex_normals()
+    shape.add_attribute('vertex_color', 3, mi.Float(albedo.astype(np.float32).ravel()))
+    shape.write_ply(path)
+
+
+def write_box(box: trimesh.Trimesh, path: str) -> None:
+    """Write the box with one vertex per face corner: no loader can smooth its normals."""
+    flat = box.copy()
+    flat.unmerge_vertices()
+    flat.export(path)
+
+
+def _noise(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    """Per-image noise std from two independent renders: std(a - b) / sqrt(2)."""
+    diff = (a - b)[mask] if mask.any() else (a - b).reshape(-1, 3)
+    return float(np.std(diff) / np.sqrt(2.0))
+
+
+def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int = DEFAULT_SPP,
+                 seed: int = 0, max_depth: int = DEFAULT_MAX_DEPTH, subsets=SUBSETS,
+                 margin: float = 0.15, write: bool = True) -> dict:
+    """Render a synthetic dataset of ``obj`` into ``out_dir``.
+
+    ``obj`` is a name of :data:`reneus_mi.objects.OBJECTS`, a mesh file or a
+    :class:`trimesh.Trimesh` with vertex colours; it is centred and scaled with
+    its box by :func:`reneus_mi.objects.normalize` (``margin``). ``seed`` fixes
+    the cameras and the sample streams. ``gt.ply``, ``box.ply`` and
+    ``synth.json`` are always written; with ``write`` each subset is written in
+    the Blender and NeuS formats with a scene XML (see the module docstring).
+
+    Returns a dict: ``images`` ({subset: (N,H,W,3) float32, display values}),
+    ``masks`` (N,H,W), ``K``, ``c2w``, ``gt_mesh``, ``container``, ``paths``
+    ({subset: {format: folder}}), ``spp``, ``max_depth``, ``noise`` (per-pixel
+    std of one image inside the box mask, display units, from two renders of
+    view 0 of the first subset) and ``seconds``.
+    """
+    subsets = tuple(subsets)
+    if not subsets or any(s not in SUBSETS for s in subsets) or len(set(subsets)) != len(subsets):
+        raise ValueError(f"subsets={subsets!r}: expected distinct names among {SUBSETS}")
+    for name, value in (('spp', spp), ('max_depth', max_depth)):
+        if int(value) != value or value < 1:
+            raise ValueError(f"{name}={value!r}: expected a positive integer")
+    start = time.perf_counter()
+    mesh = obj.copy() if isinstance(obj, trimesh.Trimesh) else load_object(obj)
+    if mesh.visual.kind != 'vertex':
+        raise ValueError("object mesh: expected per-vertex colours (mesh.visual.vertex_colors)")
+    mesh, box = normalize(mesh, margin=margin)
+
+    out_dir = os.path.abspath(out_dir)
+    os.makedirs(out_dir, exist_ok=True)
+    gt_path, box_path = os.path.join(out_dir, 'gt.ply'), os.path.join(out_dir, 'box.ply')
+    write_object(mesh, gt_path)
+    write_box(box, box_path)
+
+    K, c2w = sample_cameras(views, res, seed)
+    masks = container_masks(box_path, K, c2w, res, res)
+    # Seeds of renders are spaced by this stride so that no two renders (views,
+    # passes, subsets, the noise probe) share a sample stream.
+    stride = max(1, -(-res * res * spp // _MAX_LANES))
+    base = seed * (len(SUBSETS) + 1) * (views + 1) * stride
+    images, noise = {}, None
+    for s, subset in enumerate(subsets):
+        scene = mi.load_dict(scene_dict(gt_path, box_path if subset == 'box' else None, max_depth))
+        first = base + s * (views + 1) * stride
+        linear = [render_view(scene, K[v], c2w[v], res, spp, first + v * stride)
+                  for v in tqdm(range(views), desc=f'render {subset}', unit='view', disable=None)]
+        images[subset] = encode(np.stack(linear))
+        if noise is None:
+            again = encode(render_view(scene, K[0], c2w[0], res, spp, first + views * stride))
+            noise = _noise(images[subset][0], again, masks[0])
+
+    paths = {}
+    if write:
+        paths = _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path)
+    result = {'images': images, 'masks': masks, 'K': K, 'c2w': c2w, 'gt_mesh': gt_path,
+              'container': box_path, 'paths': paths, 'spp': spp, 'max_depth': max_depth,
+              'noise': noise, 'seconds': time.perf_counter() - start}
+    meta = {'object': 'trimesh' if isinstance(obj, trimesh.Trimesh) else os.fspath(obj),
+            'views': views, 'res': res, 'spp': spp, 'max_depth': max_depth, 'seed': seed,
+            'margin': margin, 'ior': IOR, 'environment': ENVIRONMENT, 'gamma': GAMMA,
+            'camera_distance': CAMERA_DISTANCE, 'noise_std_display': noise,
+            'subsets': list(subsets), 'paths': paths, 'seconds': result['seconds']}
+    with open(os.path.join(out_dir, 'synth.json'), 'w') as f:
+        json.dump(meta, f, indent=2, default=str)
+    return result
+
+
+def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path) -> dict:
+    """Write every subset in both formats, plus its scene XML; return the folders."""
+    from reneus_mi.data import Dataset, write_dataset
+    from reneus_mi.scene import write_scene
+
+    paths = {}
+    for subset, imgs in images.items():
+        # The nobox subset keeps the box masks but has no interface to model.
+        with_box = subset == 'box'
+        ds = Dataset(images=imgs, masks=masks, K=K, c2w=c2w,
+                     names=[f'r_{i:03d}' for i in range(len(imgs))],
+                     root=os.path.join(out_dir, subset),
+                     container=box_path if with_box else None, ior=IOR if with_box else None,
+                     gt_mesh=gt_path, scale_mat=np.eye(4))
+        paths[subset] = {'blender': os.path.join(out_dir, subset),
+                         'neus': os.path.join(out_dir, f'{subset}_neus')}
+        for fmt, folder in paths[subset].items():
+            write_dataset(ds, folder, fmt)
+        write_scene(ds, os.path.join(paths[subset]['blender'], 'scene.xml'))
+    return paths
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog='python -m reneus_mi.synth',
+        description='Render a synthetic ReNeuS dataset (object in a glass box, and without '
+                    "the box) with Mitsuba's path tracer.")
+    parser.add_argument('object', help=f"object name ({', '.join(OBJECTS)}) or a mesh file "
+                                       "readable by trimesh (centred and scaled like the others)")
+    parser.add_argument('-o', '--out', required=True, help='output folder')
+    parser.add_argument('--views', type=int, default=60, help='number of views (default 60)')
+    parser.add_argument('--res', type=int, default=800,
+                        help='image width and height in pixels (default 800)')
+    parser.add_argument('--spp', type=int, default=DEFAULT_SPP,
+                        help=f'samples per pixel (default {DEFAULT_SPP})')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='seed of the camera poses and of the sample streams (default 0)')
+    parser.add_argument('--max-depth', type=int, default=DEFAULT_MAX_DEPTH,
+                        help=f'path length limit of the path tracer (default {DEFAULT_MAX_DEPTH})')
+    parser.add_argument('--margin', type=float, default=0.15,
+                        help="glass around the object, as a fraction of the object's largest "
+                             'half-extent (default 0.15)')
+    parser.add_argument('--subsets', nargs='+', choices=SUBSETS, default=list(SUBSETS),
+                        help='subsets to render (default: both)')
+    args = parser.parse_args(argv)
+    try:
+        result = make_dataset(args.object, args.out, views=args.views, res=args.res,
+                              spp=args.spp, seed=args.seed, max_depth=args.max_depth,
+                              subsets=args.subsets, margin=args.margin)
+    except ValueError as err:
+        parser.error(str(err))
+    print(f"wrote {os.path.abspath(args.out)}: {args.views} views at {args.res}x{args.res}, "
+          f"{result['spp']} spp, max_depth {result['max_depth']}, noise (per-pixel std inside "
+          f"the box, display units) {result['noise']:.4f}, {result['seconds']:.0f} s")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
