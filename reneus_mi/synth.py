@@ -33,9 +33,11 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, focal_from_fov, intrinsics
+from reneus_mi.data import Dataset, load_dataset, write_dataset
+from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.data.container import container_masks
 from reneus_mi.objects import OBJECTS, load_object, normalize
+from reneus_mi.scene import sensor_dict, write_scene
 
 #: Index of refraction of the glass box.
 IOR = 1.45
@@ -75,35 +77,22 @@ def sample_cameras(views: int, res: int, seed: int = 0,
     rng = np.random.default_rng(seed)
     pos = rng.normal(size=(views, 3))
     pos *= distance / np.linalg.norm(pos, axis=1, keepdims=True)
-    forward = -pos / distance
-    up = np.where(np.abs(forward[:, 2:]) > 0.99, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right, axis=1, keepdims=True)
-    down = np.cross(forward, right)
-    c2w = np.tile(np.eye(4), (views, 1, 1))
-    c2w[:, :3, 0], c2w[:, :3, 1], c2w[:, :3, 2], c2w[:, :3, 3] = right, down, forward, pos
+    # World z is up in the images, except near the poles where it is nearly
+    # the viewing direction.
+    ups = np.where(np.abs(pos[:, 2:]) > 0.99 * distance, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])
+    c2w = np.stack([look_at(p, up=u) for p, u in zip(pos, ups)])
     focal = focal_from_fov(2.0 * np.arcsin(1.0 / distance), res)
     K = np.tile(intrinsics(focal, focal, 0.5 * res, 0.5 * res), (views, 1, 1))
     return K, c2w
 
 
 def _sensor(K: np.ndarray, c2w: np.ndarray, res: int) -> mi.Sensor:
-    """Mitsuba's perspective camera for an OpenCV pinhole with a centred principal point."""
-    if not np.allclose(K[:2, 2], 0.5 * res) or not np.isclose(K[0, 0], K[1, 1]):
-        raise ValueError(f"K={K.tolist()}: expected square pixels and the principal point at "
-                         f"the centre of the {res}x{res} image")
-    fov = np.degrees(2.0 * np.arctan(0.5 * res / K[0, 0]))
-    return mi.load_dict({
-        'type': 'perspective', 'fov': float(fov), 'fov_axis': 'x',
-        'to_world': mi.ScalarTransform4f(c2w @ MITSUBA_FROM_OPENCV),
-        # Stratified samples: a third of the independent sampler's noise at
-        # the same spp, inside the glass (measured, 256 spp).
-        'sampler': {'type': 'multijitter'},
-        # A box filter keeps each sample in its own pixel, as the model's
-        # pixel-centre rays assume (the default Gaussian blurs across pixels).
-        'film': {'type': 'hdrfilm', 'width': res, 'height': res, 'pixel_format': 'rgb',
-                 'rfilter': {'type': 'box'}},
-    })
+    """Mitsuba's sensor of an OpenCV camera (:func:`reneus_mi.scene.sensor_dict`)."""
+    desc = sensor_dict(K, c2w, res, res)
+    # Stratified samples: a third of the independent sampler's noise at the
+    # same spp inside the glass (measured on the insect at 256 spp).
+    desc['sampler'] = {'type': 'multijitter'}
+    return mi.load_dict(desc)
 
 
 def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_DEPTH) -> dict:
@@ -237,17 +226,16 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
             'views': views, 'res': res, 'spp': spp, 'max_depth': max_depth, 'seed': seed,
             'margin': margin, 'ior': IOR, 'environment': ENVIRONMENT, 'gamma': GAMMA,
             'camera_distance': CAMERA_DISTANCE, 'noise_std_display': noise,
-            'subsets': list(subsets), 'paths': paths, 'seconds': result['seconds']}
+            'subsets': list(subsets), 'seconds': result['seconds'],
+            'paths': {sub: {fmt: os.path.relpath(folder, out_dir) for fmt, folder in p.items()}
+                      for sub, p in paths.items()}}
     with open(os.path.join(out_dir, 'synth.json'), 'w') as f:
-        json.dump(meta, f, indent=2, default=str)
+        json.dump(meta, f, indent=2)
     return result
 
 
 def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path) -> dict:
     """Write every subset in both formats, plus its scene XML; return the folders."""
-    from reneus_mi.data import Dataset, write_dataset
-    from reneus_mi.scene import write_scene
-
     paths = {}
     for subset, imgs in images.items():
         # The nobox subset keeps the box masks but has no interface to model.
@@ -261,7 +249,11 @@ def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path) -> dict:
                          'neus': os.path.join(out_dir, f'{subset}_neus')}
         for fmt, folder in paths[subset].items():
             write_dataset(ds, folder, fmt)
-        write_scene(ds, os.path.join(paths[subset]['blender'], 'scene.xml'))
+        # Read back, the dataset names the meshes copied into its folder:
+        # the scene then refers to nothing outside it.
+        folder = paths[subset]['blender']
+        write_scene(load_dataset(folder, need_container=with_box),
+                    os.path.join(folder, 'scene.xml'))
     return paths
 
 
