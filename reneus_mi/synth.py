@@ -188,6 +188,7 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
         if int(value) != value or value < 1:
             raise ValueError(f"{name}={value!r}: expected a positive integer")
     start = time.perf_counter()
+    K, c2w = sample_cameras(views, res, seed)
     mesh = obj.copy() if isinstance(obj, trimesh.Trimesh) else load_object(obj)
     if mesh.visual.kind != 'vertex':
         raise ValueError("object mesh: expected per-vertex colours (mesh.visual.vertex_colors)")
@@ -199,7 +200,6 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     write_object(mesh, gt_path)
     write_box(box, box_path)
 
-    K, c2w = sample_cameras(views, res, seed)
     masks = container_masks(box_path, K, c2w, res, res)
     # Seeds of renders are spaced by this stride so that no two renders (views,
     # passes, subsets, the noise probe) share a sample stream.
