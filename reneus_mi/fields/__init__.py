@@ -1,7 +1,8 @@
 """Fields: what lives inside the container (SDF + radiance + sharpness)."""
 from reneus_mi.fields.analytic import BoxField, SphereField, TorusField
 from reneus_mi.fields.base import Field, load_field
+from reneus_mi.fields.neus import NeuSField
 
-FIELD_KINDS = {cls.__name__: cls for cls in (SphereField, BoxField, TorusField)}
+FIELD_KINDS = {cls.__name__: cls for cls in (SphereField, BoxField, TorusField, NeuSField)}
 
-__all__ = ['Field', 'SphereField', 'BoxField', 'TorusField', 'load_field', 'FIELD_KINDS']
+__all__ = ['Field', 'SphereField', 'BoxField', 'TorusField', 'NeuSField', 'load_field', 'FIELD_KINDS']
