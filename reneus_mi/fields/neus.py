@@ -85,6 +85,9 @@ class NeuSFieldConfig:
                 raise ValueError(f'NeuSField: {name}={value!r}, expected a positive number')
         if not isinstance(self.init_variance, (int, float)) or not math.isfinite(self.init_variance):
             raise ValueError(f'NeuSField: init_variance={self.init_variance!r}, expected a finite number')
+        if not self.init_radius < Field.bound:
+            raise ValueError(f'NeuSField: init_radius={self.init_radius!r}, expected a radius below '
+                             f'the field bound {Field.bound}')
         if self.activation not in ('softplus', 'sine'):
             raise ValueError(f"NeuSField: activation={self.activation!r}, expected 'softplus' or 'sine'")
         if self.dtype not in ('auto', 'float32', 'float16'):
@@ -261,7 +264,7 @@ class NeuSField(Field):
         self.cfg = cfg
         self.n_features = cfg.n_features
         self.fd_step = float(cfg.fd_step)
-        self._half_t, tensor_t = storage_types(cfg.dtype)
+        self._net_t, tensor_t = storage_types(cfg.dtype)
         rng = np.random.default_rng(cfg.seed)
 
         n_pos = 3 * (1 + 2 * cfg.multires)
@@ -287,7 +290,7 @@ class NeuSField(Field):
 
     # ------------------------------------------------------------ networks
     def _to_net(self, values: list) -> nn.CoopVec:
-        return nn.CoopVec(*[self._half_t(v) for v in values])
+        return nn.CoopVec(*[self._net_t(v) for v in values])
 
     @staticmethod
     def _from_net(cv: nn.CoopVec) -> list:
