@@ -49,9 +49,7 @@ def test_analytic_distances(field, points, distances):
 
 
 @pytest.mark.parametrize('field', [SphereField(radius=0.5, center=(0.1, -0.1, 0.05)),
-                                   pytest.param(BoxField(half_size=(0.3, 0.2, 0.1)), marks=pytest.mark.xfail(
-                                       strict=True, reason='BoxField.gradient is NaN inside the box: '
-                                       'd|max(q, 0)| at max(q, 0) = 0 is 0/0 (analytic.py)')),
+                                   BoxField(half_size=(0.3, 0.2, 0.1)),
                                    TorusField(major=0.4, minor=0.15)])
 def test_analytic_gradient_unit_length(field):
     x, _ = ball_points(500, seed=3, r_min=0.05)

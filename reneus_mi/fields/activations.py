@@ -17,10 +17,9 @@ class Softplus(nn.Module):
     r"""Softplus with sharpness ``beta``: :math:`\log(1 + e^{\beta x}) / \beta`.
 
     Evaluated in the overflow-free form
-    :math:`\max(x, 0) + \log(1 + e^{-\beta |x|}) / \beta`, component by
-    component: ``exp2``/``log2`` on a ``CoopVec`` exist but compile to slower
-    code on LLVM (a 64-wide layer ran ~1.4x slower than with Dr.Jit's own
-    vectorised exp2/log2 on the unpacked components).
+    :math:`\max(x, 0) + \log(1 + e^{-\beta |x|}) / \beta` on the whole
+    ``CoopVec``: forward + backward of a field ran 1.7x faster this way than
+    component by component (0.47 s vs 0.82 s, 2^14 points, 32 wide, LLVM).
     """
     DRJIT_STRUCT = {'beta': float}
 
@@ -29,8 +28,7 @@ class Softplus(nn.Module):
 
     def __call__(self, arg: nn.CoopVec, /) -> nn.CoopVec:
         k = -self.beta / math.log(2.0)
-        return nn.CoopVec(*[dr.maximum(a, 0.0) + dr.log2(1.0 + dr.exp2(dr.abs(a) * k)) * (1.0 / -k)
-                            for a in arg])
+        return dr.maximum(arg, 0.0) + dr.log2(dr.exp2(dr.abs(arg) * k) + 1.0) * (1.0 / -k)
 
     def __repr__(self) -> str:
         return f'Softplus(beta={self.beta})'

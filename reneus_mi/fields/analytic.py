@@ -68,7 +68,9 @@ class BoxField(AnalyticField):
 
     def _distance(self, p):
         q = dr.abs(p) - mi.Vector3f(*self.half_size)
-        return dr.norm(dr.maximum(q, 0.0)) + dr.minimum(dr.max(q), 0.0)
+        # The clamp keeps the gradient of the norm finite (0, not 0/0) inside.
+        outside = dr.sqrt(dr.maximum(dr.squared_norm(dr.maximum(q, 0.0)), 1e-30))
+        return outside + dr.minimum(dr.max(q), 0.0)
 
     def config(self):
         return {**super().config(), 'half_size': list(self.half_size)}

@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
+from reneus_mi.io import atomic_savez
 
 # Vertices of a regular tetrahedron, |e_k|^2 = 3 and sum_k e_k e_k^T = 4 I.
 _TETRA = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1.0, 1.0))
@@ -58,8 +59,9 @@ class Field:
     def gradient(self, x: mi.Point3f) -> tuple[mi.Float, mi.Vector3f, list[mi.Float]]:
         """Return ``(g(x), ∇g(x), feature(x))``; ∇g by a tetrahedral stencil.
 
-        With e_k the four tetrahedron vertices (|e_k|² = 3),
-        Σ_k e_k g(x + h e_k) = 4 h ∇g + O(h³), exact for linear g.
+        With e_k the four tetrahedron vertices (Σ_k e_k e_kᵀ = 4 I),
+        Σ_k e_k g(x + h e_k) = 4 h ∇g + O(h²): first order in h (the error is
+        h times the off-diagonal Hessian), exact for linear g.
         """
         g, feature = self.geometry(x)
         h = self.fd_step
@@ -88,22 +90,16 @@ class Field:
         return {}
 
     # ---------------------------------------------------------------- files
-    def save(self, path: str | os.PathLike) -> None:
-        """Write the field (kind, config and weights) to one ``.npz`` file, atomically."""
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The field as named arrays: a JSON header (kind, config) and the parameters."""
         arrays = {f'param/{k}': np.asarray(v, dtype=np.float32).ravel()
                   for k, v in self.params().items()}
         header = json.dumps({'kind': type(self).__name__, 'config': self.config()})
-        path = os.fspath(path)
-        directory = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(dir=directory, suffix='.npz.tmp')
-        try:
-            with os.fdopen(fd, 'wb') as f:
-                np.savez(f, header=np.array(header), **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        return {'header': np.array(header), **arrays}
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the field to one ``.npz`` file, atomically."""
+        atomic_savez(path, **self.arrays())
 
 
 def load_field(path: str | os.PathLike) -> Field:
