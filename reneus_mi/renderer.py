@@ -118,14 +118,13 @@ def volume_render(field, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float, t_far:
     alpha = neus_alpha(sdf - half, sdf + half, field.inv_s())
     # A section of zero length has no extent to absorb in, whatever NeuS's ε says.
     alpha = dr.select(dist > 0.0, alpha, 0.0)
-    weights, transmittance = composite(alpha, n)
-
     color = field.radiance(x, d_s, normal, feature)
-    return VolumeResult(
-        color=dr.block_sum(color * weights, n),
-        transmittance=transmittance,
-        depth=dr.block_sum(t_mid * weights, n),
-        normal=dr.block_sum(normal * weights, n),
-        eikonal=dr.block_sum(dr.square(grad_norm - 1.0), n),
-        n_samples=n,
-    )
+    eikonal = dr.square(grad_norm - 1.0)
+    # One kernel for both networks: each block reduction below evaluates its
+    # input, and would otherwise re-run the networks behind it.
+    dr.eval(alpha, color, normal, eikonal)
+
+    weights, transmittance = composite(alpha, n)
+    color, depth, normal, eikonal = dr.block_sum((color * weights, t_mid * weights, normal * weights, eikonal), n)
+    return VolumeResult(color=color, transmittance=transmittance, depth=depth, normal=normal,
+                        eikonal=eikonal, n_samples=n)

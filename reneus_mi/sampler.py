@@ -63,6 +63,8 @@ def composite(alpha: mi.Float, n: int) -> tuple[mi.Float, mi.Float]:
     a finite logarithm (and a zero gradient) rather than -inf.
     """
     log_t = dr.log(dr.maximum(1.0 - alpha, 1e-7))
+    # Evaluated once: both block reductions below would otherwise recompute it.
+    dr.eval(log_t)
     weights = alpha * dr.exp(dr.block_prefix_sum(log_t, n, exclusive=True))
     return weights, dr.exp(dr.block_sum(log_t, n))
 
@@ -99,6 +101,7 @@ def importance_samples(t: mi.Float, weights: mi.Float, n_in: int, n_new: int) ->
     n_rays = dr.width(t) // n_in
     _, i = segment_layout(n_rays, n_in)
     pdf = dr.select(i == n_in - 1, 0.0, weights + 1e-5)
+    dr.eval(pdf)
     total = dr.repeat(dr.block_sum(pdf, n_in), n_in)
     # cdf[i] is the mass before value i: 0 at the first value, 1 at the last.
     cdf = dr.block_prefix_sum(pdf, n_in, exclusive=True) / total
@@ -190,6 +193,18 @@ def upsample_weights(o: mi.Point3f, d: mi.Vector3f, t: mi.Float, sdf: mi.Float, 
     return composite(alpha, n)[0]
 
 
+def _sdf_along(field, o: mi.Point3f, d: mi.Vector3f, t: mi.Float, n: int) -> mi.Float:
+    """The SDF at ``o + t d`` for ``n`` values of t per segment, evaluated."""
+    ray, _ = segment_layout(dr.width(o), n)
+    x = dr.gather(mi.Point3f, o, ray) + dr.gather(mi.Vector3f, d, ray) * t
+    # Evaluating x first keeps n out of the network's kernel, so one compilation
+    # serves every round; t is evaluated too, as the merge reads it again.
+    dr.eval(t, x)
+    sdf = field.sdf(x)
+    dr.eval(sdf)
+    return sdf
+
+
 def sample_segments(field, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float, t_far: mi.Float, *,
                     n_coarse: int = 64, n_fine: int = 64, n_upsample_steps: int = 4,
                     upsample_s: float = 64.0, jitter: mi.Float | None = None) -> tuple[mi.Float, int]:
@@ -206,17 +221,12 @@ def sample_segments(field, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float, t_fa
         t = stratified_samples(dr.detach(t_near), dr.detach(t_far), n_coarse,
                                None if jitter is None else dr.detach(jitter), include_ends=True)
         n = n_coarse + 2
-        n_rays = dr.width(t_near)
-        ray, _ = segment_layout(n_rays, n)
-        sdf = field.sdf(dr.gather(mi.Point3f, o, ray) + dr.gather(mi.Vector3f, d, ray) * t)
-        dr.eval(t, sdf)
+        sdf = _sdf_along(field, o, d, t, n)
         n_step = n_fine // n_upsample_steps if n_fine > 0 else 0
         for k in range(n_upsample_steps if n_step > 0 else 0):
             w = upsample_weights(o, d, t, sdf, n, upsample_s * 2.0 ** k, field.bound)
             t_new = importance_samples(t, w, n, n_step)
-            ray_new, _ = segment_layout(n_rays, n_step)
-            sdf_new = field.sdf(dr.gather(mi.Point3f, o, ray_new) + dr.gather(mi.Vector3f, d, ray_new) * t_new)
-            dr.eval(t_new, sdf_new)
+            sdf_new = _sdf_along(field, o, d, t_new, n_step)
 
             ranks = merge_ranks(t, n, t_new, n_step)
             t, sdf = scatter_merged(*ranks, t, t_new), scatter_merged(*ranks, sdf, sdf_new)
