@@ -1,6 +1,5 @@
 """NeuS hierarchical sampling: merge, stratified and inverse-CDF samples, weights."""
 import numpy as np
-import pytest
 
 import reneus_mi  # noqa: F401  (selects the variant)
 import drjit as dr
