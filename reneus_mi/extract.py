@@ -1,0 +1,82 @@
+"""Mesh of a reconstruction: ``python -m reneus_mi.extract CHECKPOINT -o mesh.ply``.
+
+Marching cubes on the field's SDF inside the container's bounding box (the
+field is fitted only there), post-processed (the paper keeps the largest
+connected component), with vertices in the dataset's world coordinates. The
+checkpoint carries the field, its frame and the container, so nothing else is
+needed.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import drjit as dr
+import numpy as np
+
+from reneus_mi.mesh import POSTPROCESS_MODES, extract_mesh, postprocess
+
+
+def field_mesh(field, frame: dict, resolution: int, mode: str):
+    """The post-processed mesh of ``field``; ``frame`` as stored in a checkpoint.
+
+    ``frame`` holds ``center`` and ``scale`` (field frame → world), ``lo`` and
+    ``hi`` (the container's world bounding box) and ``container`` (its mesh
+    file, for ``mode='crop'``).
+    """
+    c, r = np.asarray(frame['center'], dtype=np.float64), float(frame['scale'])
+    lo = np.maximum((np.asarray(frame['lo']) - c) / r, -1.0)
+    hi = np.minimum((np.asarray(frame['hi']) - c) / r, 1.0)
+    to_world = np.diag([r, r, r, 1.0])
+    to_world[:3, 3] = c
+    with dr.suspend_grad():
+        mesh = extract_mesh(field, lo, hi, resolution, to_world=to_world)
+    container = None
+    if mode == 'crop':
+        from reneus_mi.data.container import load_container
+        if not frame.get('container'):
+            raise ValueError("postprocess 'crop' needs the container mesh, and none is recorded")
+        container = load_container(frame['container'])
+    return postprocess(mesh, mode, container)
+
+
+def write_mesh(mesh, path: str) -> None:
+    """Export atomically (the format follows the extension)."""
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    base, ext = os.path.splitext(path)
+    tmp = f'{base}.tmp{ext}'
+    mesh.export(tmp)
+    os.replace(tmp, path)
+
+
+def main(argv=None) -> int:
+    import reneus_mi  # noqa: F401  (variant)
+    from reneus_mi import checkpoint
+    from reneus_mi.fields import load_field
+
+    parser = argparse.ArgumentParser(prog='python -m reneus_mi.extract', description=__doc__.splitlines()[0])
+    parser.add_argument('checkpoint', help='checkpoint.npz of a reconstruction')
+    parser.add_argument('-o', '--output', default='mesh.ply', help='mesh file (.ply, .obj, .stl)')
+    parser.add_argument('--resolution', type=int, default=512, help='marching-cubes grid resolution')
+    parser.add_argument('--postprocess', choices=POSTPROCESS_MODES, default='largest',
+                        help="'largest' connected component (the paper), 'crop' to the container, or 'none'")
+    args = parser.parse_args(argv)
+    try:
+        meta = checkpoint.load_meta(args.checkpoint)
+        if 'frame' not in meta:
+            raise ValueError(f'{args.checkpoint}: the checkpoint records no field frame')
+        field = load_field(args.checkpoint)
+        if args.resolution < 8:
+            raise ValueError(f'--resolution {args.resolution}: expected >= 8')
+        mesh = field_mesh(field, meta['frame'], args.resolution, args.postprocess)
+        write_mesh(mesh, args.output)
+    except ValueError as e:
+        raise SystemExit(f'error: {e}') from None
+    print(f'wrote {args.output}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces '
+          f'(resolution {args.resolution}, postprocess {args.postprocess})')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
