@@ -162,13 +162,24 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     def aov_names(self):
         return list(AOV_NAMES) if self.aovs_enabled else []
 
+    @property
+    def field(self) -> Field:
+        return self._field
+
+    @field.setter
+    def field(self, value: Field) -> None:
+        self._field = value
+        # mi.traverse gets copies: SceneParameters rebinds the arrays it is
+        # given, while a packed network reads its weights through views of
+        # its own buffer, so new values must be written into the field.
+        self._exposed = {key: type(v)(v) for key, v in value.params().items()}
+
     def traverse(self, cb):
-        for key, value in self.field.params().items():
+        for key, value in self._exposed.items():
             cb.put(key, value, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys):
-        # SceneParameters assigns the field's arrays in place; nothing is cached.
-        pass
+        self._field.set_params({k: self._exposed[k] for k in keys if k in self._exposed})
 
     def to_string(self):
         return (f'ReNeuSIntegrator[mode={self.mode}, max_depth={self.max_depth}, '

@@ -23,9 +23,10 @@ def sensor(res):
 
 
 def reneus_scene(res=24, ior=1.45, **integrator):
-    settings = {'type': 'reneus', 'field': 'sphere', 'field_radius': SPHERE_RADIUS,
-                'field_color': SPHERE_COLOR, 'field_inv_s': 4000.0, 'gamma': 1.0}
-    settings.update(integrator)
+    settings = {'type': 'reneus', 'gamma': 1.0, **integrator}
+    if settings.setdefault('field', 'sphere') == 'sphere':
+        settings = {'field_radius': SPHERE_RADIUS, 'field_color': SPHERE_COLOR,
+                    'field_inv_s': 4000.0, **settings}
     return mi.load_dict({'type': 'scene', 'integrator': settings, 'sensor': sensor(res),
                          'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': AMBIENT}},
                          'container': container(ior)})
