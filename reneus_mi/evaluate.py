@@ -31,24 +31,10 @@ import sys
 import numpy as np
 import trimesh
 
-from reneus_mi.mesh import POSTPROCESS_MODES, check_container, inside, postprocess
+from reneus_mi.mesh import POSTPROCESS_MODES, check_container, inside, load_mesh, postprocess
 
 #: The paper's minimum number of sample points.
 MIN_POINTS = 10000
-
-
-def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
-    """Read a triangle mesh (any format trimesh reads); a clear error if that fails or it is empty."""
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise ValueError(f'{path}: no such mesh file')
-    try:
-        mesh = trimesh.load(path, force='mesh')
-    except Exception as e:  # trimesh raises many kinds for unreadable files
-        raise ValueError(f'{path}: cannot read a mesh ({type(e).__name__}: {e})') from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f'{path}: the file holds no triangles')
-    return mesh
 
 
 def _sample(mesh: trimesh.Trimesh, n: int, seed: int, name: str) -> np.ndarray:

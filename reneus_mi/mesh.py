@@ -12,6 +12,8 @@ optional trimesh dependency (rtree, embree) and works for any closed container.
 """
 from __future__ import annotations
 
+import os
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -214,3 +216,17 @@ def postprocess(mesh: trimesh.Trimesh, mode: str, container: trimesh.Trimesh | N
     if mode == 'none':
         return mesh.copy()
     raise ValueError(f'postprocess mode {mode!r}: expected one of {", ".join(POSTPROCESS_MODES)}')
+
+
+def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
+    """Read a triangle mesh (any format trimesh reads); a clear error if that fails or it is empty."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ValueError(f'{path}: no such mesh file')
+    try:
+        mesh = trimesh.load(path, force='mesh')
+    except Exception as e:  # trimesh raises many kinds for unreadable files
+        raise ValueError(f'{path}: cannot read a mesh ({type(e).__name__}: {e})') from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f'{path}: the file holds no triangles')
+    return mesh

@@ -29,7 +29,7 @@ import numpy as np
 import trimesh
 
 from reneus_mi.fields.base import Field
-from reneus_mi.mesh import extract_mesh
+from reneus_mi.mesh import extract_mesh, load_mesh
 
 
 # ----------------------------------------------------------------- SDF parts
@@ -218,12 +218,7 @@ def load_object(name_or_path: str | os.PathLike) -> trimesh.Trimesh:
     if not os.path.isfile(key):
         raise ValueError(f"{key!r}: neither an object name ({', '.join(OBJECTS)}) "
                          f"nor an existing mesh file")
-    try:
-        mesh = trimesh.load(key, force='mesh')
-    except Exception as err:  # trimesh raises many types for unreadable files
-        raise ValueError(f"{key}: cannot be read as a mesh ({err})") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f"{key}: expected a triangle mesh, found no faces")
+    mesh = load_mesh(key)
     if not np.all(np.isfinite(mesh.vertices)):
         raise ValueError(f"{key}: mesh has non-finite vertex positions")
     if mesh.visual.kind == 'texture':
