@@ -11,14 +11,13 @@ of the given size (the paper's is 256 x 8).
 import argparse
 import os
 import resource
-import sys
 import time
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-import reneus_mi
+import reneus_mi  # noqa: F401  (variant, plugins)
 from reneus_mi.fields.neus import NeuSField
 
 SCENE = os.path.join(os.path.dirname(__file__), '..', 'scenes', 'glass_sphere.xml')

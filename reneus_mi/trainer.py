@@ -25,7 +25,7 @@ import numpy as np
 
 from reneus_mi import checkpoint, losses
 from reneus_mi.config import TrainConfig
-from reneus_mi.data import Dataset, load_dataset
+from reneus_mi.data import Dataset
 from reneus_mi.fields import load_field
 from reneus_mi.extract import field_mesh, write_mesh
 from reneus_mi.io import atomic_write_text
@@ -82,6 +82,10 @@ class Trainer:
         return os.path.join(self.out, 'checkpoint.npz')
 
     def save_checkpoint(self) -> None:
+        # The field holds the weights of the last step's forward pass; the
+        # optimiser holds the updated ones, which the checkpoint must carry.
+        with dr.suspend_grad():
+            self.field.set_params(self.opt)
         checkpoint.save(self.checkpoint_path, self.field, self.opt, iteration=self.iteration,
                         rng=self.rng, best_loss=self.best_loss, frame=self.frame)
 

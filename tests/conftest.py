@@ -1,7 +1,6 @@
 import os
 import sys
 
-import pytest
 
 # Tests run on the CPU variant, whatever the machine has.
 os.environ.setdefault('RENEUS_VARIANT', 'llvm_ad_rgb')

@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from reneus_mi.data import Dataset, load_dataset, write_dataset
-from reneus_mi.data.cameras import OPENGL_FROM_OPENCV, intrinsics, look_at
+from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.data.container import container_masks
 from reneus_mi.data.images import read_image, write_png
 

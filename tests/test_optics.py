@@ -1,7 +1,6 @@
 """Fresnel, reflection, refraction and TIR at known angles (reneus_mi.optics)."""
 import math
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest

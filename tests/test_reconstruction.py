@@ -7,7 +7,6 @@ reconstruction runs with the paper's renderer (``reneus``) and with plain
 NeuS, which ignores the glass; the meshes are compared with the ground truth
 by Chamfer-L1 x100 (the paper's metric and post-processing).
 """
-import dataclasses
 
 import pytest
 
