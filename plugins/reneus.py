@@ -15,7 +15,7 @@ VARIANT = mi.variant()
 MODES = ('reneus', 'neus', 'neus_plus')
 
 #: Integrator parameters other than ``field_*`` constructor arguments.
-_PARAMETERS = ('mode', 'max_depth', 'rr_depth', 'n_coarse', 'n_fine', 'n_upsample_steps',
+_PARAMETERS = ('mode', 'max_depth', 'terminal', 'rr_depth', 'n_coarse', 'n_fine', 'n_upsample_steps',
                'upsample_s', 'gamma', 'aovs', 'field', 'field_center', 'field_scale', 'dataset')
 
 #: Names of the AOV channels, after R, G, B (and alpha where the film has it).
@@ -58,9 +58,14 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     **Depth.** ``max_depth`` = D_re counts interface events. A ray created by
     the D-th event is still followed to the next surface: if it escapes it
-    takes the ambient, if it is inside its segment is volume rendered, and the
-    light from beyond that segment's end is dropped. This is what Mitsuba's
-    ``path`` integrator computes with ``max_depth = D_re + 1``. D_re = 0
+    takes the ambient, if it is inside its segment is volume rendered. What
+    lies beyond the surface that ends it is ``terminal``: with ``ambient`` (the
+    default) the ambient radiance, attenuated by the segment's transmittance;
+    with ``black`` nothing, which is what Mitsuba's ``path`` integrator
+    computes with ``max_depth = D_re + 1``. In ambient light a non-absorbing
+    container is filled with nearly the ambient radiance, so ``ambient`` is
+    the far better truncation: with ``black`` the field has to explain the
+    light of the dropped paths, and paints fake walls to do so. D_re = 0
     renders the camera ray's own segment only.
 
     **Radiance units.** As in the paper, the field's colour is seen through an
@@ -78,6 +83,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
      * - max_depth
        - |int|
        - D_re, the number of interface events followed (see above). (Default: 2)
+     * - terminal
+       - |string|
+       - What a ray left at the depth limit sees beyond its last segment:
+         ``ambient`` or ``black`` (see above). (Default: ``ambient``)
      * - n_coarse
        - |int|
        - Coarse (stratified) samples per inside segment. (Default: 64)
@@ -135,6 +144,9 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         super().__init__(props)
         self.mode = mode
         self.max_depth = max_depth
+        self.terminal = props.get('terminal', 'ambient')
+        if self.terminal not in ('ambient', 'black'):
+            raise ValueError(f"reneus integrator: terminal={self.terminal!r}; expected 'ambient' or 'black'")
         self.n_coarse = _positive(props, 'n_coarse', 64)
         self.n_fine = _positive(props, 'n_fine', 64, allow_zero=True)
         self.n_upsample_steps = _positive(props, 'n_upsample_steps', 4)
@@ -182,7 +194,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         self._field.set_params({k: self._exposed[k] for k in keys if k in self._exposed})
 
     def to_string(self):
-        return (f'ReNeuSIntegrator[mode={self.mode}, max_depth={self.max_depth}, '
+        return (f'ReNeuSIntegrator[mode={self.mode}, max_depth={self.max_depth}, terminal={self.terminal}, '
                 f'samples={self.n_coarse}+{self.n_fine}, field={type(self.field).__name__}]')
 
     def sample(self, mode, scene, sampler, ray, δL=None, state_in=None, active=True, **kwargs):
@@ -241,6 +253,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                 acc.add(rays.camera, rays.β * T * _ambient(scene, rays.d), leaving)
                 return
             if depth == depth_limit:
+                if self.terminal == 'ambient':
+                    acc.add(rays.camera, rays.β * T * _ambient(scene, rays.d), hit)
                 return
             rays = self._interface(rays, si, hit, T, eta, reflect=not plus)
 

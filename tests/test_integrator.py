@@ -40,7 +40,7 @@ def errors(image, mean):
 
 def test_matches_path_tracer(reference):
     depth, mean, _ = reference
-    mean_err, p99 = errors(reneus_pixels(reneus_scene(RES, max_depth=depth)), mean)
+    mean_err, p99 = errors(reneus_pixels(reneus_scene(RES, max_depth=depth, terminal='black')), mean)
     assert mean_err < MEAN_TOL and p99 < P99_TOL, (mean_err, p99)
 
 
@@ -65,14 +65,23 @@ def test_comparison_has_teeth(reference, broken, monkeypatch):
         monkeypatch.setattr(plugin, 'interface', _half_fresnel)
     if broken == 'no_reflection':
         monkeypatch.setattr(plugin.ReNeuSIntegrator, '_interface', _no_reflection)
-    mean_err, p99 = errors(reneus_pixels(reneus_scene(RES, ior=ior, max_depth=depth)), mean)
+    mean_err, p99 = errors(reneus_pixels(reneus_scene(RES, ior=ior, max_depth=depth, terminal='black')), mean)
     assert mean_err > 2 * MEAN_TOL, (broken, mean_err)
+
+
+def test_ambient_terminal_is_closer_to_the_converged_image():
+    # The full light transport (path tracer, 16 bounces) against D_re = 2:
+    # taking the ambient beyond the last segment errs far less than dropping it.
+    converged, _ = path_reference(path_scene(RES, max_depth=16), 2048)
+    ambient, _ = errors(reneus_pixels(reneus_scene(RES, max_depth=2)), converged)
+    black, _ = errors(reneus_pixels(reneus_scene(RES, max_depth=2, terminal='black')), converged)
+    assert ambient < 0.5 * black, (ambient, black)
 
 
 def test_depth_zero_sees_only_the_first_segment():
     # D_re = 0: the camera ray's own segment. It is outside the glass, so the
     # image is the ambient where the ray misses the block and black where it hits.
-    scene = reneus_scene(RES, max_depth=0)
+    scene = reneus_scene(RES, max_depth=0, terminal='black')
     image = reneus_pixels(scene)
     mask = np.array(scene.integrator().trace(scene, _rays(scene)).mask)
     assert np.allclose(image[~mask], 0.8, atol=1e-6)
