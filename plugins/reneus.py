@@ -185,19 +185,24 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         # given, while a packed network reads its weights through views of
         # its own buffer, so new values must be written into the field.
         self._exposed = {key: type(v)(v) for key, v in value.params().items()}
+        self._exposed_changed = False
 
     def traverse(self, cb):
         for key, value in self._exposed.items():
             cb.put(key, value, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys):
-        self._field.set_params({k: self._exposed[k] for k in keys if k in self._exposed})
+        # Written in sample(), not here: SceneParameters.update() evaluates
+        # the scene afterwards, which cuts the autodiff link of the write.
+        self._exposed_changed |= any(k in self._exposed for k in keys)
 
     def to_string(self):
         return (f'ReNeuSIntegrator[mode={self.mode}, max_depth={self.max_depth}, terminal={self.terminal}, '
                 f'samples={self.n_coarse}+{self.n_fine}, field={type(self.field).__name__}]')
 
     def sample(self, mode, scene, sampler, ray, δL=None, state_in=None, active=True, **kwargs):
+        if self._exposed_changed:
+            self._field.set_params(self._exposed)
         result = self.trace(scene, mi.Ray3f(ray), active=active)
         L = self.tonemap(result.L)
         aovs = []
