@@ -29,8 +29,8 @@ DEMO_INTEGRATOR = {'field_hidden': 32, 'field_layers': 4, 'field_n_features': 8,
                    'field_color_hidden': 32, 'field_color_layers': 2, 'field_multires': 4,
                    'field_multires_view': 2, 'field_init_radius': 0.3,
                    'n_coarse': 32, 'n_fine': 16, 'n_upsample_steps': 2}
-DEMO_TRAIN = {'iterations': 600, 'batch_rays': 256, 'learning_rate': 2e-3, 'warm_up': 50,
-              'validate_every': 200, 'mesh_resolution': 128}
+DEMO_TRAIN = {'iterations': 300, 'batch_rays': 256, 'learning_rate': 2e-3, 'warm_up': 50,
+              'validate_every': 100, 'mesh_resolution': 128}
 
 
 def make_demo(folder: str, *, mode: str = 'reneus') -> str:

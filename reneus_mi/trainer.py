@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+from drjit.opt import GradScaler
 
 from reneus_mi import checkpoint, losses
 from reneus_mi.config import TrainConfig
@@ -29,6 +30,7 @@ from reneus_mi.data import Dataset
 from reneus_mi.fields import load_field
 from reneus_mi.extract import field_mesh, write_mesh
 from reneus_mi.io import atomic_write_text
+from reneus_mi.variant import is_cuda
 from reneus_mi.render import write_image
 
 #: Rays per kernel launch when rendering a whole view.
@@ -71,6 +73,9 @@ class Trainer:
         self.iteration = 0
         self.best_loss = float('inf')
         self.opt = mi.ad.Adam(lr=cfg.learning_rate, params=self.field.params())
+        # Half-precision networks (CUDA) need loss scaling; an array scale
+        # keeps the scaler's first back-off from recompiling the kernels.
+        self.scaler = GradScaler(init_scale=mi.Float(2.0 ** 16)) if is_cuda() else None
 
     @property
     def field(self):
@@ -131,17 +136,21 @@ class Trainer:
         # Scheduled, the loss terms are computed in the launch that evaluates
         # the gradients rather than in a forward pass of their own.
         dr.schedule(loss, l_color, l_trans, l_eik, pred)
-        dr.backward(loss)
+        dr.backward(self.scaler.scale(loss) if self.scaler else loss)
         grads = [dr.grad(self.opt[key]) for key in self.opt.keys()]
         dr.eval(grads)
         self._check(float(loss[0]), it)
+        # With loss scaling, an overflowing gradient is the scaler's to skip.
         for key, grad in zip(self.opt.keys(), grads):
-            if not dr.all(dr.isfinite(grad)):
+            if not self.scaler and not dr.all(dr.isfinite(grad)):
                 raise TrainingError(f'step {it}: the gradient of {key!r} is not finite; stopped '
                                     f'before updating, the last checkpoint ({self.checkpoint_path}) is intact')
         lr = cfg.learning_rate_at(it)
         self.opt.set_learning_rate(lr)
-        self.opt.step()
+        if self.scaler:
+            self.scaler.step(self.opt)
+        else:
+            self.opt.step()
         self.iteration += 1
         value = float(loss[0])
         self.best_loss = min(self.best_loss, value)
