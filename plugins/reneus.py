@@ -229,9 +229,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         n = dr.width(ray.o)
         acc = _Accumulator(n)
         camera = dr.arange(mi.UInt32, n)
-        rays = _Rays(o=mi.Point3f(ray.o), d=mi.Vector3f(ray.d), β=mi.Float(1.0) + 0.0 * ray.o.x,
-                     camera=camera)
-        rays = rays.take(dr.compress(mi.Bool(active) | dr.zeros(mi.Bool, n)))
+        rays = _Rays(o=mi.Point3f(ray.o), d=mi.Vector3f(ray.d), β=dr.ones(mi.Float, n), camera=camera)
+        rays = rays.take(dr.compress(dr.full(mi.Bool, True, n) & active))
         if self.mode == 'neus':
             self._trace_neus(scene, rays, acc, jitter, cos_anneal_ratio)
         else:
