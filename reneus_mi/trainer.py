@@ -214,6 +214,7 @@ class Trainer:
         """Train to ``cfg.iterations``, checkpointing and validating on the way."""
         from tqdm import tqdm
         cfg = self.cfg
+        os.makedirs(self.out, exist_ok=True)
         log_path = os.path.join(self.out, 'log.jsonl')
         start, psnrs = time.perf_counter(), []
         bar = tqdm(total=cfg.iterations, initial=self.iteration, disable=not progress,
