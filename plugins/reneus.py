@@ -311,6 +311,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         lane = dr.select(refracted, j - n, j)
         β_all = dr.select(refracted, dr.gather(mi.Float, β_t, lane), dr.gather(mi.Float, β_r, lane))
         keep = dr.compress(dr.gather(mi.Bool, hit, lane) & (dr.detach(β_all) > 0.0))
+        if dr.width(keep) == 0:  # Dr.Jit 1.5 crashes on dr.select of empty arrays
+            return rays.take(keep)
         lane = dr.gather(mi.UInt32, lane, keep)
         refracted = dr.gather(mi.Bool, refracted, keep)
         d = dr.select(refracted, dr.gather(mi.Vector3f, d_t, lane), dr.gather(mi.Vector3f, d_r, lane))

@@ -282,12 +282,9 @@ def test_nan_stops_naming_the_step_and_keeps_checkpoint(scene_xml, tmp_path, whe
     assert not glob.glob(str(tmp_path / '*.tmp'))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'segfault: a NaN SDF makes every segment transmittance NaN, no ray survives '
-    'ReNeuSIntegrator._interface, and dr.select on the zero-width arrays there '
-    'crashes Dr.Jit 1.5 (plugins/reneus.py, _interface, after `keep = dr.compress(...)`)'))
 def test_nan_geometry_stops_with_training_error(scene_xml, tmp_path):
-    """In a subprocess: the NaN SDF crashes the process instead of raising TrainingError."""
+    """In a subprocess, as it once crashed the process: a NaN SDF makes every
+    transmittance NaN, so no ray survives the first interface."""
     code = (
         'import sys; sys.path.insert(0, sys.argv[1]); import conftest\n'
         'from test_checkpoint import poison_run\n'
