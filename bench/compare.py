@@ -151,7 +151,8 @@ def run_method(obj: str, key: str, out: str, cfg: dict, *, integrator_extra: dic
             old = json.load(f)
         if old.get('train') != record['train'] or old.get('integrator') != record['integrator']:
             raise ValueError(f'{run_dir}: was run with other settings; choose another --out')
-        if os.path.isfile(mesh_path):
+        # A finished run, or a failed one (delete its folder to try again).
+        if os.path.isfile(mesh_path) or old.get('failure'):
             return old
 
     seconds, failure = None, None
