@@ -198,9 +198,12 @@ class Trainer:
     @property
     def frame(self) -> dict:
         """The field's frame and the container, as checkpoints record them."""
+        c, r = np.array(self.integrator.field_center), self.integrator.field_scale
         bbox = self.scene.bbox()
-        return {'center': list(self.integrator.field_center), 'scale': self.integrator.field_scale,
-                'lo': list(bbox.min), 'hi': list(bbox.max), 'container': self.ds.container}
+        # Without a container (NeuS on box-free data) the field's sphere bounds the mesh.
+        lo, hi = (np.array(bbox.min), np.array(bbox.max)) if bbox.valid() else (c - r, c + r)
+        return {'center': c.tolist(), 'scale': r, 'lo': lo.tolist(), 'hi': hi.tolist(),
+                'container': self.ds.container}
 
     def write_mesh(self, path: str, resolution: int | None = None):
         with dr.suspend_grad():
