@@ -201,12 +201,11 @@ def run_method(obj: str, key: str, out: str, cfg: dict, *, integrator_extra: dic
 
 
 def _trainer_class():
-    """The trainer, with a mesh-extraction region for scenes without a container.
+    """The trainer, meshing box-free runs inside the glass box's bounds.
 
-    Workaround: ``Trainer.frame`` takes the marching-cubes box from
-    ``scene.bbox()``, which is empty (inf, -inf) for a ``nobox`` scene (no
-    shapes), so ``write_mesh`` raises. Here such a scene uses the glass box's
-    bounding box (``box_path``), the region every other method is meshed in.
+    Without a container the trainer meshes the field's whole bounding sphere;
+    every method of the table is meshed in the same region, the box's
+    bounding box (``box_path``), so that the Chamfer distances compare.
     """
     from reneus_mi.trainer import Trainer
 
@@ -216,7 +215,7 @@ def _trainer_class():
         @property
         def frame(self) -> dict:
             frame = Trainer.frame.fget(self)
-            if not np.all(np.isfinite(frame['lo'] + frame['hi'])) and self.box_path:
+            if self.ds.container is None and self.box_path:
                 import trimesh
                 lo, hi = trimesh.load(self.box_path, force='mesh').bounds
                 frame = dict(frame, lo=[float(v) for v in lo], hi=[float(v) for v in hi])
