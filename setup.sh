@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Set up reneus-mi on a fresh Debian/Ubuntu machine, then run the main job or the tests.
 #
-#   bash setup.sh          install, then reconstruct the embedded demo (a few minutes on a CPU)
-#   bash setup.sh test     install, then run the test suite
+#   bash setup.sh [options]       install, then reconstruct the embedded demo (options go to
+#                                 python -m reneus_mi.optimize, e.g. --iterations 100)
+#   bash setup.sh test [options]  install, then run the test suite (options go to pytest)
 #
 # Dr.Jit's CPU backend needs libLLVM >= 16 (Debian 12 ships 14/15, with which
 # every kernel aborts with "LLVM ERROR: Cannot select ... fminimum").
@@ -20,8 +21,9 @@ if ! have_llvm; then
 fi
 python3 -m pip install -q --disable-pip-version-check -e '.[test]'
 
-case "${1:-demo}" in
-  demo) shift || true; exec python3 -m reneus_mi.optimize --demo "$@" ;;
-  test) shift; exec python3 -m pytest -q "$@" ;;
-  *) echo "usage: bash setup.sh [demo|test] [options]" >&2; exit 2 ;;
-esac
+mode=demo
+case "${1:-}" in demo|test) mode=$1; shift ;; esac
+if [ "$mode" = test ]; then
+  exec python3 -m pytest -q "$@"
+fi
+exec python3 -m reneus_mi.optimize --demo "$@"
