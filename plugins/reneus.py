@@ -1,30 +1,32 @@
 """The ``reneus`` integrator: ReNeuS's hybrid renderer (Sec. 3.3 of the paper)."""
 from __future__ import annotations
 
+import dataclasses
+import typing
 from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.fields import FIELD_KINDS, Field, load_field
+from reneus_mi.config import ModelConfig, RenderConfig, SamplerConfig, field_config_class, typed_value
+from reneus_mi.errors import ReneusError
+from reneus_mi.fields import FIELD_CONFIGS, Field, load_field
+from reneus_mi.frame import FieldFrame
 from reneus_mi.optics import interface
+from reneus_mi.presets import preset
 from reneus_mi.renderer import volume_render
 
 VARIANT = mi.variant()
-
-MODES = ('reneus', 'neus', 'neus_plus')
-
-#: Integrator parameters other than ``field_*`` constructor arguments.
-_PARAMETERS = ('mode', 'max_depth', 'terminal', 'rr_depth', 'n_coarse', 'n_fine', 'n_upsample_steps',
-               'upsample_s', 'gamma', 'aovs', 'field', 'field_center', 'field_scale', 'dataset')
 
 #: Names of the AOV channels, after R, G, B (and alpha where the film has it).
 AOV_NAMES = ('mask', 'sparsity', 'nx', 'ny', 'nz')
 
 
 @dataclass
-class TraceResult:
-    """What :meth:`ReNeuSIntegrator.trace` returns per camera ray."""
+class RayTreeResult:
+    """What :meth:`ReNeuSIntegrator.render_rays` returns per camera ray."""
+    color: mi.Color3f
+    """The pixel value 𝒢(C(ℓ)) = C^(1/γ): what photographs are compared with."""
     L: mi.Color3f
     """Linear radiance C(ℓ) accumulated over the ray tree (before gamma)."""
     mask: mi.Bool
@@ -37,6 +39,17 @@ class TraceResult:
     """Number of samples behind ``eikonal``."""
     normal: mi.Vector3f
     """Normals of the inside segments, accumulated with the same weights as L."""
+
+
+@dataclass
+class StepState:
+    """Per-step schedule values of training, handed to the renderer in one place."""
+    step: int = 0
+    """The optimisation step (drives the field's and the sampler's own schedules)."""
+    cos_anneal_ratio: float = 1.0
+    """NeuS's cosine annealing ratio in [0, 1]."""
+    jitter_seed: int | None = None
+    """Seed of the stratified jitter of every segment's samples (None: stratum midpoints)."""
 
 
 class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
@@ -73,49 +86,30 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     interface is folded into the field's colour (a path tracer sees an emitter
     of radiance c·η² inside the glass as this integrator sees colour c).
 
+    **Settings.** Every property is a field of :class:`reneus_mi.config.ModelConfig`
+    under the same name: ``preset`` picks a named configuration
+    (:mod:`reneus_mi.presets`), and the properties given override it.
+
     .. pluginparameters::
 
-     * - mode
+     * - preset
        - |string|
-       - ``reneus`` (the paper), ``neus`` (ignores the container: plain NeuS in
-         the field's bounding sphere) or ``neus_plus`` (refracts once on entry,
-         no reflection, no Fresnel weights). (Default: ``reneus``)
-     * - max_depth
-       - |int|
-       - D_re, the number of interface events followed (see above). (Default: 2)
-     * - terminal
-       - |string|
-       - What a ray left at the depth limit sees beyond its last segment:
-         ``ambient`` or ``black`` (see above). (Default: ``ambient``)
-     * - n_coarse
-       - |int|
-       - Coarse (stratified) samples per inside segment. (Default: 64)
-     * - n_fine
-       - |int|
-       - Importance samples per inside segment, added in ``n_upsample_steps``
-         rounds as in NeuS. (Default: 64)
-     * - n_upsample_steps
-       - |int|
-       - Rounds of NeuS's hierarchical up-sampling. (Default: 4)
-     * - upsample_s
-       - |float|
-       - Fixed sharpness of the first up-sampling round, doubled each round.
-         (Default: 64)
-     * - gamma
-       - |float|
-       - Output is C^(1/gamma) (the paper's camera response); 1 gives linear
-         radiance. (Default: 2.2)
-     * - aovs
-       - |bool|
-       - Append the AOV channels ``mask`` (camera ray meets the container),
-         ``sparsity`` (Σ 1 - T_ℓ over inside segments) and ``nx, ny, nz``
-         (accumulated normals) to the image. (Default: false)
+       - Named configuration the other properties override: ``paper``, ``cpu``,
+         ``demo``, ... (Default: ``paper``)
+     * - mode, max_depth, terminal, gamma, aovs
+       - |string|, |int|, |string|, |float|, |bool|
+       - The ray tree (:class:`~reneus_mi.config.RenderConfig`): ``reneus``,
+         ``neus`` or ``neus_plus``; D_re; ``ambient`` or ``black``; the output
+         is C^(1/gamma); AOVs ``mask``, ``sparsity``, ``nx, ny, nz``.
+     * - n_coarse, n_fine, n_upsample_steps, upsample_s
+       - |int|, |int|, |int|, |float|
+       - Samples per inside segment (:class:`~reneus_mi.config.SamplerConfig`).
      * - field
        - |string|
-       - ``neus`` (an untrained NeuS field), ``sphere``, ``box``, ``torus``
-         (analytic fields), or the path of a field saved with
-         ``Field.save``/a checkpoint. Properties named ``field_<arg>`` are
-         passed to the field's constructor as ``<arg>``. (Default: ``neus``)
+       - The field's kind (``neus``, ``sphere``, ``box``, ``torus``, ...) or the
+         path of a field saved with ``Field.save``/a checkpoint. Properties named
+         ``field_<name>`` set the kind's configuration field ``<name>``.
+         (Default: the preset's)
      * - field_center
        - |point|
        - World position of the centre of the field's unit bounding sphere.
@@ -129,119 +123,93 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
          fits the field to. Not used for rendering. (Default: none)
 
     The field's parameters appear in ``mi.traverse(scene)`` under the
-    integrator's id (e.g. ``field.sdf.weights``); ``mi.render(scene,
-    params=params)`` differentiates with respect to them.
+    integrator's id (e.g. ``field.sdf.weights``). They are the field's own
+    arrays: ``params.update()`` writes into the field, ``mi.render(scene,
+    params=params)`` differentiates with respect to them, and after training
+    ``mi.traverse`` shows the trained values.
     """
 
     def __init__(self, props: mi.Properties):
-        mode = props.get('mode', 'reneus')
-        if mode not in MODES:
-            raise ValueError(f"reneus integrator: mode={mode!r}; expected one of {', '.join(MODES)}")
-        max_depth = props.get('max_depth', 2)
-        if max_depth < 0:
-            raise ValueError(f'reneus integrator: max_depth={max_depth}; expected an integer >= 0 '
-                             '(D_re, the number of interface events followed)')
-        super().__init__(props)
-        self.mode = mode
-        self.max_depth = max_depth
-        self.terminal = props.get('terminal', 'ambient')
-        if self.terminal not in ('ambient', 'black'):
-            raise ValueError(f"reneus integrator: terminal={self.terminal!r}; expected 'ambient' or 'black'")
-        self.n_coarse = _positive(props, 'n_coarse', 64)
-        self.n_fine = _positive(props, 'n_fine', 64, allow_zero=True)
-        self.n_upsample_steps = _positive(props, 'n_upsample_steps', 4)
-        if self.n_fine % self.n_upsample_steps:
-            raise ValueError(f'reneus integrator: n_fine={self.n_fine} must be a multiple of '
-                             f'n_upsample_steps={self.n_upsample_steps}')
-        self.upsample_s = float(props.get('upsample_s', 64.0))
-        self.gamma = float(props.get('gamma', 2.2))
-        if self.gamma <= 0:
-            raise ValueError(f'reneus integrator: gamma={self.gamma}; expected > 0 (1 = linear output)')
-        self.aovs_enabled = bool(props.get('aovs', False))
-        self.dataset = props.get('dataset', '')
-        center = props.get('field_center', mi.ScalarPoint3f(0.0))
-        self.field_center = tuple(float(c) for c in center)
-        self.field_scale = float(props.get('field_scale', 1.0))
-        if self.field_scale <= 0:
-            raise ValueError(f'reneus integrator: field_scale={self.field_scale}; expected > 0')
-        self.field = _make_field(props)
-        unknown = [n for n in props.unqueried() if n not in _PARAMETERS]
-        if unknown:
-            raise ValueError(f"reneus integrator: unknown parameter(s) {', '.join(map(repr, unknown))}; "
-                             f"expected {', '.join(_PARAMETERS)} or field_<constructor argument>")
+        # ADIntegrator's constructor would read max_depth (its own default, untyped): skipped.
+        mi.CppADIntegrator.__init__(self, props)
+        self.preset, model, field, self.frame, self.dataset = _read_properties(props)
+        self.state = StepState()
+        self._container = None
+        self.configure(model, field)
+
+    def configure(self, model: ModelConfig, field: Field | None = None) -> None:
+        """Render with ``model`` (and ``field``, else a fresh one built from ``model.field``)."""
+        self.model = model
+        self.field = field if field is not None else model.field.setup()
 
     # ------------------------------------------------------------ Mitsuba API
     def aov_names(self):
-        return list(AOV_NAMES) if self.aovs_enabled else []
-
-    @property
-    def field(self) -> Field:
-        return self._field
-
-    @field.setter
-    def field(self, value: Field) -> None:
-        self._field = value
-        # mi.traverse gets copies: SceneParameters rebinds the arrays it is
-        # given, while a packed network reads its weights through views of
-        # its own buffer, so new values must be written into the field.
-        self._exposed = {key: type(v)(v) for key, v in value.params().items()}
-        self._exposed_changed = False
+        return list(AOV_NAMES) if self.model.render.aovs else []
 
     def traverse(self, cb):
-        for key, value in self._exposed.items():
+        for key, value in self.field.params().items():
             cb.put(key, value, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys):
-        # Written in sample(), not here: SceneParameters.update() evaluates
-        # the scene afterwards, which cuts the autodiff link of the write.
-        self._exposed_changed |= any(k in self._exposed for k in keys)
+        # SceneParameters wrote the new values into the field's own arrays.
+        pass
 
     def to_string(self):
-        return (f'ReNeuSIntegrator[mode={self.mode}, max_depth={self.max_depth}, terminal={self.terminal}, '
-                f'samples={self.n_coarse}+{self.n_fine}, field={type(self.field).__name__}]')
+        r, s = self.model.render, self.model.sampler
+        return (f'ReNeuSIntegrator[mode={r.mode}, max_depth={r.max_depth}, terminal={r.terminal}, '
+                f'samples={s.n_coarse}+{s.n_fine}, field={type(self.field).__name__}]')
 
     def sample(self, mode, scene, sampler, ray, δL=None, state_in=None, active=True, **kwargs):
-        if self._exposed_changed:
-            self._field.set_params(self._exposed)
-        result = self.trace(scene, mi.Ray3f(ray), active=active)
-        L = self.tonemap(result.L)
+        result = self.render_rays(scene, mi.Ray3f(ray), active=active)
         aovs = []
-        if self.aovs_enabled:
+        if self.model.render.aovs:
             n = result.normal
             aovs = [mi.Float(result.mask), result.sparsity, n.x, n.y, n.z]
-        return dr.select(active, L, 0.0), active, aovs, None
+        return dr.select(active, result.color, 0.0), active, aovs, None
 
     # ------------------------------------------------------------ the method
+    def begin_step(self, state: StepState) -> None:
+        """Take the schedule values of a training step (the trainer calls this once per step)."""
+        self.state = state
+        self.field.set_step(state.step)
+
+    def render_rays(self, scene: mi.Scene, ray: mi.Ray3f, active: mi.Bool | bool = True) -> RayTreeResult:
+        """Render camera rays (world space): the pixel values and the per-ray loss terms.
+
+        This is the algorithm; :meth:`sample` (``mi.render``) and the trainer
+        both come here. The schedule of the current training step is
+        :attr:`state` (see :meth:`begin_step`).
+        """
+        container = self._bind(scene)
+        n = dr.width(ray.o)
+        jitter = None
+        if self.state.jitter_seed is not None:
+            jitter = mi.PCG32(n, initstate=mi.UInt64(self.state.jitter_seed)).next_float32()
+        acc = _Accumulator(n)
+        rays = _Rays(o=mi.Point3f(ray.o), d=mi.Vector3f(ray.d), β=dr.ones(mi.Float, n),
+                     camera=dr.arange(mi.UInt32, n))
+        rays = rays.take(dr.compress(dr.full(mi.Bool, True, n) & active))
+        if self.model.render.mode == 'neus':
+            self._trace_neus(scene, rays, acc, jitter)
+        else:
+            self._trace_container(scene, container.eta, rays, acc, jitter)
+        L = acc.result()
+        return RayTreeResult(color=self.tonemap(L), L=L, mask=acc.mask, sparsity=acc.sparsity,
+                             eikonal=acc.eikonal, n_samples=acc.n_samples, normal=acc.normal)
+
     def tonemap(self, L: mi.Color3f) -> mi.Color3f:
         """The paper's 𝒢(C) = C^(1/γ); the clamp keeps its derivative finite at 0."""
-        if self.gamma == 1.0:
+        gamma = self.model.render.gamma
+        if gamma == 1.0:
             return L
-        return dr.power(dr.maximum(L, 1e-6), 1.0 / self.gamma)
-
-    def trace(self, scene: mi.Scene, ray: mi.Ray3f, *, jitter: mi.Float | None = None,
-              cos_anneal_ratio: float = 1.0, active: mi.Bool | bool = True) -> TraceResult:
-        """Render camera rays (world space) into linear radiance and loss terms.
-
-        ``jitter`` (one value in [0, 1) per camera ray) shifts the stratified
-        samples of every segment the ray spawns; ``None`` takes midpoints.
-        """
-        eta = self._container_eta(scene)
-        n = dr.width(ray.o)
-        acc = _Accumulator(n)
-        camera = dr.arange(mi.UInt32, n)
-        rays = _Rays(o=mi.Point3f(ray.o), d=mi.Vector3f(ray.d), β=dr.ones(mi.Float, n), camera=camera)
-        rays = rays.take(dr.compress(dr.full(mi.Bool, True, n) & active))
-        if self.mode == 'neus':
-            self._trace_neus(scene, rays, acc, jitter, cos_anneal_ratio)
-        else:
-            self._trace_container(scene, eta, rays, acc, jitter, cos_anneal_ratio)
-        return acc.result()
+        return dr.power(dr.maximum(L, 1e-6), 1.0 / gamma)
 
     # One generation of the ray tree per loop turn: rays are compressed to the
     # live ones so that the 2^k growth costs nothing for rays that escaped.
-    def _trace_container(self, scene, eta, rays, acc, jitter, cos_anneal_ratio):
-        plus = self.mode == 'neus_plus'
-        depth_limit = 1 if plus else self.max_depth
+    def _trace_container(self, scene, eta, rays, acc, jitter):
+        render = self.model.render
+        plus = render.mode == 'neus_plus'
+        depth_limit = 1 if plus else render.max_depth
         for depth in range(depth_limit + 1):
             if rays.size == 0:
                 return
@@ -251,32 +219,31 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                 acc.mark_container(rays.camera, hit)
             leaving = hit & (dr.dot(rays.d, si.n) > 0)
             acc.add(rays.camera, rays.β * _ambient(scene, rays.d), ~hit)
-            T = self._render_inside(rays, si.t, leaving, acc, jitter, cos_anneal_ratio)
+            T = self._render_inside(rays, si.t, leaving, acc, jitter)
             if plus and depth == 1:
                 # NeuS+: the light beyond the segment arrives straight, unrefracted.
                 acc.add(rays.camera, rays.β * T * _ambient(scene, rays.d), leaving)
                 return
             if depth == depth_limit:
-                if self.terminal == 'ambient':
+                if render.terminal == 'ambient':
                     acc.add(rays.camera, rays.β * T * _ambient(scene, rays.d), hit)
                 return
             rays = self._interface(rays, si, hit, T, eta, reflect=not plus)
 
-    def _trace_neus(self, scene, rays, acc, jitter, cos_anneal_ratio):
+    def _trace_neus(self, scene, rays, acc, jitter):
         # Plain NeuS: the field's unit bounding sphere, ambient beyond it.
-        c, r = mi.Point3f(*self.field_center), self.field_scale
-        o = (rays.o - c) / r
+        o = self.frame.to_field(rays.o)
         b = dr.dot(o, rays.d)
         disc = b * b - (dr.squared_norm(o) - 1.0)
         t_far = -b + dr.safe_sqrt(disc)
         inside = (disc > 0) & (t_far > 0)
         acc.mark_container(rays.camera, inside)
         t_near = dr.maximum(-b - dr.safe_sqrt(disc), 0.0)
-        rays.o = mi.Point3f(rays.o + rays.d * (t_near * r))
-        T = self._render_inside(rays, (t_far - t_near) * r, inside, acc, jitter, cos_anneal_ratio)
+        rays.o = mi.Point3f(rays.o + rays.d * (t_near * self.frame.scale))
+        T = self._render_inside(rays, (t_far - t_near) * self.frame.scale, inside, acc, jitter)
         acc.add(rays.camera, rays.β * T * _ambient(scene, rays.d), mi.Bool(True))
 
-    def _render_inside(self, rays, t_far, inside, acc, jitter, cos_anneal_ratio) -> mi.Float:
+    def _render_inside(self, rays, t_far, inside, acc, jitter) -> mi.Float:
         """Volume render the rays' segments [0, t_far] where ``inside``; return T (1 elsewhere)."""
         T = dr.ones(mi.Float, rays.size)
         seg = dr.compress(inside)
@@ -284,13 +251,12 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             return T
         s = rays.take(seg)
         t = dr.gather(mi.Float, t_far, seg)
-        r = self.field_scale
-        o_field = (s.o - mi.Point3f(*self.field_center)) / r
         u = None if jitter is None else dr.gather(mi.Float, jitter, s.camera)
-        vr = volume_render(self.field, o_field, s.d, dr.zeros(mi.Float, dr.width(seg)), t / r,
-                           n_coarse=self.n_coarse, n_fine=self.n_fine,
-                           n_upsample_steps=self.n_upsample_steps, upsample_s=self.upsample_s,
-                           jitter=u, cos_anneal_ratio=cos_anneal_ratio)
+        sampling = self.model.sampler
+        vr = volume_render(self.field, self.frame.to_field(s.o), s.d, dr.zeros(mi.Float, dr.width(seg)),
+                           t / self.frame.scale, n_coarse=sampling.n_coarse, n_fine=sampling.n_fine,
+                           n_upsample_steps=sampling.n_upsample_steps, upsample_s=sampling.upsample_s,
+                           jitter=u, cos_anneal_ratio=self.state.cos_anneal_ratio)
         acc.add(s.camera, s.β * vr.color, mi.Bool(True))
         acc.add_segment(s.camera, s.β * vr.normal, 1.0 - vr.transmittance, vr.eikonal, vr.n_samples)
         dr.scatter(T, vr.transmittance, seg)
@@ -320,30 +286,57 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         return _Rays(o=si_k.spawn_ray(d).o, d=d, β=dr.gather(mi.Float, β_all, keep),
                      camera=dr.gather(mi.UInt32, rays.camera, lane))
 
-    def _container_eta(self, scene: mi.Scene) -> mi.Float:
-        """The container's relative IOR η; checks that every shape is a smooth dielectric."""
+    # ------------------------------------------------------------ the scene
+    def _bind(self, scene: mi.Scene) -> '_Container':
+        """The scene's container, checked once per scene (its shapes identify it)."""
+        key = (tuple(scene.shapes()), scene.environment())
+        if self._container is None or not _same(self._container.key, key):
+            self._container = _Container.of(scene, key, self.model.render.mode)
+        return self._container
+
+    def frame_of(self, scene: mi.Scene) -> FieldFrame:
+        """The field's frame bounded by the scene's container (by the unit sphere without one)."""
+        bbox = scene.bbox()
+        bounds = (tuple(bbox.min), tuple(bbox.max)) if scene.shapes() and bbox.valid() else None
+        return dataclasses.replace(self.frame, bounds=bounds)
+
+
+@dataclass
+class _Container:
+    """The container of a scene: its relative IOR η, validated when first seen."""
+    key: tuple
+    eta: mi.Float
+
+    @staticmethod
+    def of(scene: mi.Scene, key: tuple, mode: str) -> '_Container':
+        if mode == 'neus':
+            return _Container(key, mi.Float(1.0))
         shapes = scene.shapes()
-        if self.mode == 'neus':
-            return mi.Float(1.0)
         if not shapes:
-            raise ValueError('reneus integrator: the scene has no shape; expected the container '
-                             'as a shape with a dielectric BSDF')
+            raise ReneusError('reneus integrator: the scene has no shape; expected the container '
+                              'as a shape with a dielectric BSDF')
         eta = None
         for shape in shapes:
             bsdf = shape.bsdf()
             name = bsdf.class_name() if bsdf is not None else 'none'
             if name != 'SmoothDielectric':
-                raise ValueError(f"reneus integrator: shape '{shape.id()}' has a {name} BSDF; every "
-                                 "shape must be the container, with a smooth 'dielectric' BSDF")
+                raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {name} BSDF; every "
+                                  "shape must be the container, with a smooth 'dielectric' BSDF")
             value = mi.traverse(bsdf)['eta']
             if eta is not None and dr.any(dr.abs(value - eta) > 1e-6):
-                raise ValueError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
-                                 f'container shape has {eta}; expected one IOR')
+                raise ReneusError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
+                                  f'container shape has {eta}; expected one IOR')
             eta = value
         if scene.environment() is None:
-            raise ValueError("reneus integrator: the scene has no environment emitter; expected "
-                             "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
-        return mi.Float(eta)
+            raise ReneusError("reneus integrator: the scene has no environment emitter; expected "
+                              "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
+        return _Container(key, mi.Float(eta))
+
+
+def _same(a: tuple, b: tuple) -> bool:
+    shapes_a, env_a = a
+    shapes_b, env_b = b
+    return env_a is env_b and len(shapes_a) == len(shapes_b) and all(x is y for x, y in zip(shapes_a, shapes_b))
 
 
 @dataclass
@@ -386,12 +379,11 @@ class _Accumulator:
         dr.scatter_add(self.eikonal, eikonal, camera)
         dr.scatter_add(self.n_samples, mi.Float(n_samples) + 0.0 * opacity, camera)
 
-    def result(self) -> TraceResult:
+    def result(self) -> mi.Color3f:
         # The sums are scatter targets: handed on unevaluated, a later kernel
         # (the film's splat) meets them dirty and Dr.Jit aborts.
         dr.eval(self.L, self.mask, self.sparsity, self.eikonal, self.n_samples, self.normal)
-        return TraceResult(L=self.L, mask=self.mask, sparsity=self.sparsity, eikonal=self.eikonal,
-                           n_samples=self.n_samples, normal=self.normal)
+        return self.L
 
 
 def _ambient(scene: mi.Scene, d: mi.Vector3f) -> mi.Color3f:
@@ -401,33 +393,77 @@ def _ambient(scene: mi.Scene, d: mi.Vector3f) -> mi.Color3f:
     return scene.environment().eval(si)
 
 
-def _positive(props, name, default, allow_zero=False) -> int:
-    value = props.get(name, default)
-    if value < 0 or (value == 0 and not allow_zero):
-        raise ValueError(f"reneus integrator: {name}={value}; expected an integer {'>= 0' if allow_zero else '> 0'}")
-    return int(value)
+# ------------------------------------------------------------ XML properties
+#: Properties that are not settings of the model.
+_OTHER = ('preset', 'field', 'field_center', 'field_scale', 'dataset')
 
 
-def _make_field(props) -> Field:
-    """Build the field named by ``field`` with the ``field_<arg>`` properties."""
-    spec = props.get('field', 'neus')
-    kwargs = {}
-    for name in props.keys():
-        if name.startswith('field_') and name not in ('field_center', 'field_scale'):
-            value = props.get(name)
-            if not isinstance(value, (bool, int, float, str)):
-                value = tuple(float(v) for v in value)
-            kwargs[name[len('field_'):]] = value
-    kinds = {cls.__name__.removesuffix('Field').lower(): cls for cls in FIELD_KINDS.values()}
-    if spec in kinds:
-        try:
-            return kinds[spec](**kwargs)
-        except TypeError as e:
-            raise ValueError(f'reneus integrator: field={spec!r}: {e}') from None
+def _read_properties(props: mi.Properties):
+    """(preset name, ModelConfig, saved field or None, FieldFrame, dataset) of the XML properties."""
+    name = _get(props, 'preset', str, 'paper')
+    try:
+        model = preset(name).model
+    except ReneusError as e:
+        raise ReneusError(f'reneus integrator: {e}') from None
+    sections = {}
+    for section, cls in (('render', RenderConfig), ('sampler', SamplerConfig)):
+        hints = typing.get_type_hints(cls)
+        given = {f.name: _get(props, f.name, hints[f.name]) for f in dataclasses.fields(cls)
+                 if f.name in props}
+        sections[section] = _build(cls, getattr(model, section), given)
+
+    spec = _get(props, 'field', str, model.field.kind)
+    field_props = {n[len('field_'):]: n for n in props.keys()
+                   if n.startswith('field_') and n not in _OTHER}
+    field = None
     if spec.endswith('.npz'):
-        if kwargs:
-            raise ValueError(f'reneus integrator: field={spec!r} is a saved field; '
-                             f"field_* parameters ({', '.join(kwargs)}) do not apply")
-        return load_field(spec)
-    raise ValueError(f"reneus integrator: field={spec!r}; expected one of {', '.join(sorted(kinds))} "
-                     'or the path of a saved field (.npz)')
+        if field_props:
+            raise ReneusError(f'reneus integrator: field={spec!r} is a saved field; '
+                              f"field_* parameters ({', '.join(field_props.values())}) do not apply")
+        field = load_field(spec)
+        field_cfg = field.Config(**field.config())
+    else:
+        if spec not in FIELD_CONFIGS:
+            raise ReneusError(f"reneus integrator: field={spec!r}; expected one of "
+                              f"{', '.join(FIELD_CONFIGS)} or the path of a saved field (.npz)")
+        cls = field_config_class(spec, 'field')
+        base = model.field if model.field.kind == spec else cls()
+        hints = typing.get_type_hints(cls)
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(field_props) - known)
+        if unknown:
+            raise ReneusError(f"reneus integrator: unknown parameter(s) "
+                              f"{', '.join(repr(field_props[u]) for u in unknown)}; the {spec} field "
+                              f"takes field_<name> for name in {', '.join(sorted(known))}")
+        field_cfg = _build(cls, base, {k: _get(props, n, hints[k]) for k, n in field_props.items()})
+
+    center = _get(props, 'field_center', tuple, (0.0, 0.0, 0.0))
+    frame = FieldFrame(center=center, scale=_get(props, 'field_scale', float, 1.0))
+    dataset = _get(props, 'dataset', str, '')
+    unknown = list(props.unqueried())
+    if unknown:
+        known = [f.name for c in (RenderConfig, SamplerConfig) for f in dataclasses.fields(c)]
+        raise ReneusError(f"reneus integrator: unknown parameter(s) {', '.join(map(repr, unknown))}; "
+                          f"expected {', '.join(known + list(_OTHER))} or field_<name>")
+    return name, ModelConfig(field=field_cfg, **sections), field, frame, dataset
+
+
+def _get(props: mi.Properties, name: str, kind, default=None):
+    """Property ``name`` checked against ``kind``; the error names it and what was expected."""
+    if name not in props:
+        return default
+    value = props.get(name)
+    if kind is tuple or typing.get_origin(kind) is tuple:
+        value = tuple(float(v) for v in value) if not isinstance(value, (str, bool, int, float)) else value
+    try:
+        return typed_value(value, kind, f'reneus integrator: {name}')
+    except ReneusError as e:
+        raise ReneusError(str(e)) from None
+
+
+def _build(cls, base, given: dict):
+    """``base`` (a config of ``cls``) with the ``given`` fields, validated."""
+    try:
+        return dataclasses.replace(base, **given)
+    except ReneusError as e:
+        raise ReneusError(f'reneus integrator: {e}') from None

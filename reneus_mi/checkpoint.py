@@ -1,31 +1,39 @@
 """Checkpoints: everything a killed run needs to continue as if never stopped.
 
 One ``.npz`` holds the field (as ``Field.save``: ``load_field`` reads a
-checkpoint too), Adam's moments and step counts, the iteration, the NumPy
-generator state, the lowest loss seen and the field's frame. It is written to
-a temporary file and renamed, so a kill never leaves a torn checkpoint.
+checkpoint too), Adam's moments and step counts under the field's parameter
+names, the loss scaler's scale (CUDA), and a JSON ``meta``: the iteration, the
+lowest loss seen, the field's frame and the container mesh. Random numbers
+depend only on (seed, step), so no generator state is needed. It is written
+to a temporary file and renamed, so a kill never leaves a torn checkpoint.
 """
 from __future__ import annotations
 
 import json
+import zipfile
 
 import numpy as np
 
+from reneus_mi.errors import ReneusError
 from reneus_mi.fields import Field
+from reneus_mi.frame import FieldFrame
 from reneus_mi.io import atomic_savez
 
 
-def save(path: str, field: Field, opt, *, iteration: int, rng: np.random.Generator,
-         best_loss: float, frame: dict) -> None:
-    """``frame``: the field's frame and container, for ``reneus_mi.extract``."""
+def save(path: str, field: Field, opt, names: dict[str, str], *, iteration: int, best_loss: float,
+         frame: FieldFrame, container: str | None, scaler=None) -> None:
+    """``names`` maps the optimiser's keys to the field's parameter names."""
     arrays = field.arrays()
-    for key in opt.keys():
+    for key, name in names.items():
         _, _, _, (t, m, v, _) = opt.state[key]
-        arrays[f'adam/{key}/t'] = np.asarray(t, dtype=np.int64).ravel()
-        arrays[f'adam/{key}/m'] = np.asarray(m, dtype=np.float32).ravel()
-        arrays[f'adam/{key}/v'] = np.asarray(v, dtype=np.float32).ravel()
-    meta = {'iteration': iteration, 'rng': rng.bit_generator.state, 'best_loss': best_loss,
-            'frame': frame}
+        arrays[f'adam/{name}/t'] = np.asarray(t, dtype=np.int64).ravel()
+        arrays[f'adam/{name}/m'] = np.asarray(m, dtype=np.float32).ravel()
+        arrays[f'adam/{name}/v'] = np.asarray(v, dtype=np.float32).ravel()
+    if scaler is not None:
+        arrays['scaler/scale'] = np.asarray(scaler.scale_factor, dtype=np.float32).ravel()
+        arrays['scaler/it'] = np.array([scaler.it], dtype=np.int64)
+    meta = {'iteration': iteration, 'best_loss': best_loss, 'frame': frame.to_dict(),
+            'container': container}
     atomic_savez(path, meta=np.array(json.dumps(meta)), **arrays)
 
 
@@ -33,19 +41,30 @@ def load_meta(path: str) -> dict:
     try:
         with np.load(path, allow_pickle=False) as f:
             return json.loads(str(f['meta']))
-    except (OSError, ValueError, KeyError) as e:
-        raise ValueError(f'{path}: not a reneus-mi checkpoint ({e})') from None
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as e:
+        raise ReneusError(f'{path}: not a reneus-mi checkpoint ({e})') from None
 
 
-def restore(path: str, opt) -> dict:
-    """Load the optimiser state of ``path`` into ``opt`` (which holds the same keys)."""
+def load_frame(path: str) -> tuple[FieldFrame, str | None]:
+    """The field frame and the container mesh recorded in a checkpoint."""
+    meta = load_meta(path)
+    if 'frame' not in meta:
+        raise ReneusError(f'{path}: the checkpoint records no field frame')
+    return FieldFrame.from_dict(meta['frame'], f'{path}: frame'), meta.get('container')
+
+
+def restore(path: str, opt, names: dict[str, str], scaler=None) -> dict:
+    """Load the optimiser (and scaler) state of ``path`` into ``opt``; return the meta."""
     meta = load_meta(path)
     with np.load(path, allow_pickle=False) as f:
-        for key in list(opt.keys()):
+        for key, name in names.items():
             value, promoted, lr, (t, m, v, v_max) = opt.state[key]
-            if f'adam/{key}/m' not in f:
-                raise ValueError(f'{path}: optimiser state of {key!r} missing')
+            if f'adam/{name}/m' not in f:
+                raise ReneusError(f'{path}: optimiser state of {name!r} missing')
             opt.state[key] = (value, promoted, lr,
-                              (type(t)(f[f'adam/{key}/t']), type(m)(f[f'adam/{key}/m']),
-                               type(v)(f[f'adam/{key}/v']), v_max))
+                              (type(t)(f[f'adam/{name}/t']), type(m)(f[f'adam/{name}/m']),
+                               type(v)(f[f'adam/{name}/v']), v_max))
+        if scaler is not None and 'scaler/scale' in f:
+            scaler.scale_factor = type(scaler.scale_factor)(f['scaler/scale'])
+            scaler.it = int(f['scaler/it'][0])
     return meta

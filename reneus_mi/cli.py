@@ -27,25 +27,26 @@ def field_docs(cls) -> dict[str, str]:
     return docs
 
 
-def add_arguments(parser: argparse.ArgumentParser, cls, *, skip=()) -> None:
-    """Add one option per field of ``cls`` (defaults shown in the help)."""
+def add_arguments(parser: argparse.ArgumentParser, cls, *, default_note: str | None = None) -> None:
+    """Add one option per field of ``cls``, its docstring as help, the default said once.
+
+    ``default_note`` replaces the default in the help where another source
+    (e.g. a preset) provides it.
+    """
     docs = field_docs(cls)
     hints = typing.get_type_hints(cls)
+    group = parser.add_argument_group(f'{cls.__name__} options')
     for f in dataclasses.fields(cls):
-        if f.name in skip:
-            continue
         kind = hints[f.name]
         option = '--' + f.name.replace('_', '-')
-        help_text = f'{docs.get(f.name, "")} (default: {f.default})'
+        help_text = f'{docs.get(f.name, "")} (default: {default_note or f.default})'
         if kind is bool:
-            parser.add_argument(option, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+            group.add_argument(option, action=argparse.BooleanOptionalAction, default=None, help=help_text)
         else:
-            base = next((t for t in typing.get_args(kind) if t is not type(None)), kind)
-            parser.add_argument(option, type=base, default=None, metavar=base.__name__.upper(), help=help_text)
+            group.add_argument(option, type=kind, default=None, metavar=kind.__name__.upper(), help=help_text)
 
 
-def from_arguments(cls, args: argparse.Namespace, base=None):
-    """Build ``cls`` from ``base`` (or the defaults) with the options the user gave."""
-    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
-             if getattr(args, f.name, None) is not None}
-    return dataclasses.replace(base or cls(), **given)
+def given_arguments(cls, args: argparse.Namespace) -> dict:
+    """The fields of ``cls`` that the user gave on the command line."""
+    return {f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
+            if getattr(args, f.name, None) is not None}

@@ -1,24 +1,104 @@
-"""Settings of a reconstruction (``python -m reneus_mi.optimize``).
+"""The settings of a reconstruction, as nested dataclasses.
 
-What is rendered (mode, D_re, samples per segment, the field's architecture)
-belongs to the scene's ``<integrator type="reneus">``; how it is fitted is
-here. Every field's docstring is its command-line help.
+A :class:`ReconstructionConfig` is what a run is made of::
+
+    ReconstructionConfig
+    ├── model: ModelConfig          what is rendered (the scene's <integrator type="reneus">)
+    │   ├── field: NeuSFieldConfig | HashGridFieldConfig | SphereFieldConfig | ...
+    │   ├── sampler: SamplerConfig  samples per inside segment (reneus_mi.ray_samplers)
+    │   └── render: RenderConfig    mode, D_re, terminal, gamma
+    └── train: TrainConfig          how it is fitted (reneus_mi.optimize)
+
+Every field has its default written once, here or beside the component it
+configures, and a docstring (the string literal under it) that is its
+documentation and its command-line help. :mod:`reneus_mi.presets` names
+complete configurations (``paper``, ``cpu``, ``demo``, ``fast``).
+:func:`to_dict` and :func:`from_dict` turn a configuration into JSON and back
+(a run's ``config.json``), with an error naming any unknown or mistyped key.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 from dataclasses import dataclass
+
+from reneus_mi.errors import ReneusError, check_choice, check_numbers
+from reneus_mi.fields import FIELD_CONFIGS, FieldConfig, NeuSFieldConfig
+
+MODES = ('reneus', 'neus', 'neus_plus')
+
+
+@dataclass
+class SamplerConfig:
+    """NeuS's hierarchical sampling of each inside segment."""
+
+    n_coarse: int = 64
+    """Coarse (stratified) samples per inside segment."""
+    n_fine: int = 64
+    """Importance samples per inside segment, added in n_upsample_steps rounds as in NeuS."""
+    n_upsample_steps: int = 4
+    """Rounds of NeuS's hierarchical up-sampling."""
+    upsample_s: float = 64.0
+    """Fixed sharpness of the first up-sampling round, doubled each round."""
+
+    def __post_init__(self):
+        check_numbers(self, positive=('n_coarse', 'n_upsample_steps', 'upsample_s'),
+                      at_least_zero=('n_fine',))
+        if self.n_fine % self.n_upsample_steps:
+            raise ReneusError(f'SamplerConfig: n_fine={self.n_fine} must be a multiple of '
+                              f'n_upsample_steps={self.n_upsample_steps}')
+TERMINALS = ('ambient', 'black')
+
+
+@dataclass
+class RenderConfig:
+    """How the ray tree through the container is rendered (Sec. 3.3)."""
+
+    mode: str = 'reneus'
+    """'reneus' (the paper), 'neus' (ignores the container: plain NeuS in the field's bounding
+    sphere) or 'neus_plus' (refracts once on entry, no reflection, no Fresnel weights)."""
+    max_depth: int = 2
+    """D_re, the number of interface events followed (the paper: 2)."""
+    terminal: str = 'ambient'
+    """What a ray left at the depth limit sees beyond its last segment: 'ambient' (nearly exact
+    in ambient light) or 'black' (what Mitsuba's path tracer computes with max_depth = D_re + 1)."""
+    gamma: float = 2.2
+    """Output is C^(1/gamma), the paper's camera response; 1 gives linear radiance."""
+    aovs: bool = False
+    """Append the AOV channels mask, sparsity, nx, ny, nz to rendered images."""
+
+    def __post_init__(self):
+        check_choice(self, 'mode', MODES)
+        check_choice(self, 'terminal', TERMINALS)
+        check_numbers(self, at_least_zero=('max_depth',), positive=('gamma',))
+
+
+@dataclass
+class ModelConfig:
+    """What the ``reneus`` integrator renders: the field, its sampling and the ray tree."""
+
+    field: FieldConfig = dataclasses.field(default_factory=NeuSFieldConfig)
+    """The field inside the container (its kind and architecture)."""
+    sampler: SamplerConfig = dataclasses.field(default_factory=SamplerConfig)
+    """Samples per inside segment."""
+    render: RenderConfig = dataclasses.field(default_factory=RenderConfig)
+    """The ray tree through the container."""
 
 
 @dataclass
 class TrainConfig:
+    """How the field is fitted to the photographs (Sec. 3.4)."""
+
     iterations: int = 3000
     """Optimisation steps (the paper: 200k on a GPU)."""
+    max_minutes: float = 0.0
+    """Wall-clock budget of the training steps in minutes; the run then writes its mesh and
+    stops (0: no budget, train for all iterations)."""
     batch_rays: int = 1024
     """Camera rays per step, drawn at random from the container masks of all views."""
     learning_rate: float = 5e-4
-    """Peak learning rate of Adam (NeuS)."""
+    """Peak learning rate of Adam (NeuS); the field scales it per parameter group."""
     learning_rate_alpha: float = 0.05
     """Final learning rate as a fraction of the peak, reached by cosine decay (NeuS)."""
     warm_up: int = 100
@@ -31,6 +111,8 @@ class TrainConfig:
     """λ2, weight of the Eikonal regulariser L_reg."""
     seed: int = 0
     """Seed of the ray batches and the stratified jitter: a fixed seed gives the same run."""
+    log_every: int = 1
+    """Steps between lines of log.jsonl."""
     validate_every: int = 500
     """Steps between validation renders (image + normal map, PNG) and mesh snapshots (0: never)."""
     validation_view: int = 0
@@ -46,20 +128,12 @@ class TrainConfig:
     """Stop when the loss exceeds this multiple of its lowest value so far (after warm-up)."""
 
     def __post_init__(self):
-        for name in ('iterations', 'batch_rays', 'mesh_resolution'):
-            if getattr(self, name) < 1:
-                raise ValueError(f'{name}={getattr(self, name)}: expected a positive integer')
-        for name in ('warm_up', 'anneal_end', 'validate_every', 'checkpoint_every', 'validation_view'):
-            if getattr(self, name) < 0:
-                raise ValueError(f'{name}={getattr(self, name)}: expected an integer >= 0')
-        for name in ('learning_rate', 'divergence_factor'):
-            if not getattr(self, name) > 0:
-                raise ValueError(f'{name}={getattr(self, name)}: expected a positive number')
-        for name in ('trans_weight', 'eikonal_weight', 'learning_rate_alpha'):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f'{name}={getattr(self, name)}: expected a number >= 0')
-        if self.postprocess not in ('largest', 'crop', 'none'):
-            raise ValueError(f"postprocess={self.postprocess!r}: expected 'largest', 'crop' or 'none'")
+        check_numbers(self, positive=('iterations', 'batch_rays', 'mesh_resolution', 'log_every',
+                                      'learning_rate', 'divergence_factor'),
+                      at_least_zero=('warm_up', 'anneal_end', 'validate_every', 'checkpoint_every',
+                                     'validation_view', 'trans_weight', 'eikonal_weight',
+                                     'learning_rate_alpha', 'max_minutes', 'seed'))
+        check_choice(self, 'postprocess', ('largest', 'crop', 'none'))
 
     def learning_rate_at(self, it: int) -> float:
         """NeuS's schedule: linear warm-up, then cosine decay to ``learning_rate_alpha``."""
@@ -72,5 +146,101 @@ class TrainConfig:
     def cos_anneal_ratio(self, it: int) -> float:
         return 1.0 if self.anneal_end == 0 else min(1.0, it / self.anneal_end)
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+
+@dataclass
+class ReconstructionConfig:
+    """A whole reconstruction: the model that is rendered and how it is trained."""
+
+    model: ModelConfig = dataclasses.field(default_factory=ModelConfig)
+    """What is rendered."""
+    train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
+    """How it is fitted."""
+
+
+# --------------------------------------------------------- dicts and JSON
+def to_dict(cfg) -> dict:
+    """Nested plain dict of a config (a field config records its ``kind``)."""
+    out = {}
+    if getattr(cfg, 'kind', None):
+        out['kind'] = cfg.kind
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        out[f.name] = to_dict(value) if dataclasses.is_dataclass(value) else \
+            (list(value) if isinstance(value, tuple) else value)
+    return out
+
+
+def from_dict(cls, values: dict, where: str = ''):
+    """Rebuild ``cls`` from :func:`to_dict`'s output; unknown keys are errors naming their path.
+
+    A key left out keeps its default, so old files stay readable when a setting is added.
+    """
+    if not isinstance(values, dict):
+        raise ReneusError(f'{where or cls.__name__}: expected a mapping of settings, got {values!r}')
+    hints = typing.get_type_hints(cls)
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in values.items():
+        path = f'{where}.{key}' if where else key
+        if key == 'kind' and getattr(cls, 'kind', None):
+            continue
+        if key not in known:
+            raise ReneusError(f"{path}: unknown setting; expected one of {', '.join(known)}")
+        kind = hints[key]
+        if kind is FieldConfig or (isinstance(kind, type) and dataclasses.is_dataclass(kind)):
+            if kind is FieldConfig:
+                kind = field_config_class(value.get('kind') if isinstance(value, dict) else None, path)
+            kwargs[key] = from_dict(kind, value, path)
+        else:
+            kwargs[key] = typed_value(value, kind, path)
+    try:
+        return cls(**kwargs)
+    except ReneusError as e:
+        raise ReneusError(f'{where}: {e}' if where else str(e)) from None
+
+
+def field_config_class(kind: str | None, where: str) -> type:
+    if kind not in FIELD_CONFIGS:
+        raise ReneusError(f"{where}.kind={kind!r}: unknown field kind; expected one of "
+                          f"{', '.join(FIELD_CONFIGS)}")
+    return FIELD_CONFIGS[kind]
+
+
+def typed_value(value, kind, path: str):
+    """``value`` checked against a field's type (int, float, str, bool, tuple of floats)."""
+    origin = typing.get_origin(kind)
+    if kind is bool:
+        ok = isinstance(value, bool)
+    elif kind is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif kind is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    elif kind is str:
+        ok = isinstance(value, str)
+    elif origin is tuple or kind is tuple:
+        ok = isinstance(value, (list, tuple)) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+        value = tuple(float(v) for v in value) if ok else value
+    else:
+        ok = True
+    if not ok:
+        name = {bool: 'true or false', int: 'an integer', float: 'a number', str: 'a string'}.get(
+            kind, 'a list of numbers')
+        raise ReneusError(f'{path}={value!r}: expected {name}')
+    return value
+
+
+def replace(cfg, **changes):
+    """``dataclasses.replace`` for nested configs: keys may be dotted paths (``train.iterations``)."""
+    nested: dict[str, dict] = {}
+    flat = {}
+    for key, value in changes.items():
+        head, _, rest = key.partition('.')
+        if rest:
+            nested.setdefault(head, {})[rest] = value
+        else:
+            flat[key] = value
+    for head, sub in nested.items():
+        flat[head] = replace(getattr(cfg, head), **sub)
+    return dataclasses.replace(cfg, **flat)

@@ -13,32 +13,27 @@ import os
 import sys
 
 import drjit as dr
-import numpy as np
 
+from reneus_mi.frame import FieldFrame
 from reneus_mi.mesh import POSTPROCESS_MODES, extract_mesh, postprocess
 
 
-def field_mesh(field, frame: dict, resolution: int, mode: str):
-    """The post-processed mesh of ``field``; ``frame`` as stored in a checkpoint.
+def field_mesh(field, frame: FieldFrame, resolution: int, mode: str, container: str | None = None):
+    """The post-processed mesh of ``field`` in world coordinates.
 
-    ``frame`` holds ``center`` and ``scale`` (field frame → world), ``lo`` and
-    ``hi`` (the container's world bounding box) and ``container`` (its mesh
-    file, for ``mode='crop'``).
+    Marching cubes runs over the container's box in the field's frame
+    (:meth:`FieldFrame.field_box`); ``container`` is the container mesh file,
+    needed by ``mode='crop'``.
     """
-    c, r = np.asarray(frame['center'], dtype=np.float64), float(frame['scale'])
-    lo = np.maximum((np.asarray(frame['lo']) - c) / r, -1.0)
-    hi = np.minimum((np.asarray(frame['hi']) - c) / r, 1.0)
-    to_world = np.diag([r, r, r, 1.0])
-    to_world[:3, 3] = c
+    lo, hi = frame.field_box()
     with dr.suspend_grad():
-        mesh = extract_mesh(field, lo, hi, resolution, to_world=to_world)
-    container = None
+        mesh = extract_mesh(field, lo, hi, resolution, to_world=frame.to_world_matrix())
     if mode == 'crop':
         from reneus_mi.data.container import load_container
-        if not frame.get('container'):
+        if not container:
             raise ValueError("postprocess 'crop' needs the container mesh, and none is recorded")
-        container = load_container(frame['container'])
-    return postprocess(mesh, mode, container)
+        return postprocess(mesh, mode, load_container(container))
+    return postprocess(mesh, mode, None)
 
 
 def write_mesh(mesh, path: str) -> None:
@@ -63,13 +58,11 @@ def main(argv=None) -> int:
                         help="'largest' connected component (the paper), 'crop' to the container, or 'none'")
     args = parser.parse_args(argv)
     try:
-        meta = checkpoint.load_meta(args.checkpoint)
-        if 'frame' not in meta:
-            raise ValueError(f'{args.checkpoint}: the checkpoint records no field frame')
+        frame, container = checkpoint.load_frame(args.checkpoint)
         field = load_field(args.checkpoint)
         if args.resolution < 8:
             raise ValueError(f'--resolution {args.resolution}: expected >= 8')
-        mesh = field_mesh(field, meta['frame'], args.resolution, args.postprocess)
+        mesh = field_mesh(field, frame, args.resolution, args.postprocess, container)
         write_mesh(mesh, args.output)
     except ValueError as e:
         raise SystemExit(f'error: {e}') from None

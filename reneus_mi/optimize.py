@@ -1,36 +1,30 @@
 """Reconstruct the object in a container: ``python -m reneus_mi.optimize scene.xml``.
 
 The scene XML describes the container (a shape with a ``dielectric`` BSDF),
-the ambient light and ``<integrator type="reneus">`` (mode, D_re, samples,
-field); the integrator's ``dataset`` names the folder of photographs and
-cameras (``--data`` overrides it; ``python -m reneus_mi.scene DATA -o
-scene.xml`` writes such a scene). Results go to the output folder (see
-:mod:`reneus_mi.trainer`); ``--resume`` continues a killed run.
-
-Without a scene (or with ``--demo``) it reconstructs the embedded demo: a
-small dataset of a statuette in a glass block that it first renders with
-Mitsuba's path tracer.
+the ambient light and ``<integrator type="reneus">`` (its ``preset`` and the
+settings that override it: mode, D_re, samples, field); the integrator's
+``dataset`` names the folder of photographs and cameras (``--data``
+overrides it; ``python -m reneus_mi.scene DATA -o scene.xml --preset cpu``
+writes such a scene). Training settings start from the same preset; the
+options below override them. Results go to the output folder (see
+:mod:`reneus_mi.trainer`); ``--resume`` continues a killed run from its
+``config.json``. ``--demo`` reconstructs the embedded demo: a small dataset of
+a statuette in a glass block that it first renders with Mitsuba's path tracer.
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 import os
 import sys
 
 from reneus_mi import cli
 from reneus_mi.config import TrainConfig
+from reneus_mi.errors import ReneusError, user_message
 
-#: The embedded demo: object, dataset size, and a field and sampling sized for a CPU.
+#: The embedded demo: object, dataset size and preset.
 DEMO_OBJECT = 'statuette'
 DEMO_DATA = {'views': 16, 'res': 32, 'spp': 256}
-DEMO_INTEGRATOR = {'field_hidden': 32, 'field_layers': 4, 'field_n_features': 8,
-                   'field_color_hidden': 32, 'field_color_layers': 2, 'field_multires': 4,
-                   'field_multires_view': 2, 'field_init_radius': 0.3,
-                   'n_coarse': 32, 'n_fine': 16, 'n_upsample_steps': 2}
-DEMO_TRAIN = {'iterations': 300, 'batch_rays': 256, 'learning_rate': 2e-3, 'warm_up': 50,
-              'validate_every': 100, 'mesh_resolution': 128}
+DEMO_PRESET = 'demo'
 
 
 def make_demo(folder: str, *, mode: str = 'reneus') -> str:
@@ -43,101 +37,91 @@ def make_demo(folder: str, *, mode: str = 'reneus') -> str:
         print(f'rendering the demo dataset ({DEMO_OBJECT}, {DEMO_DATA["views"]} views) into {folder}')
         make_dataset(DEMO_OBJECT, folder, subsets=('box',), **DEMO_DATA)
     scene = os.path.join(folder, f'scene_{mode}.xml')
-    write_scene(load_dataset(data), scene, mode=mode, **DEMO_INTEGRATOR)
+    write_scene(load_dataset(data), scene, preset=DEMO_PRESET, mode=mode)
     return scene
 
 
-def load(scene_path: str, data: str | None):
-    """The scene and its dataset, with errors that name the file."""
+def spec_of_scene(scene_path: str, data: str | None):
+    """The run of a scene XML: its integrator's model, its preset's training, its dataset."""
     import reneus_mi  # noqa: F401  (variant, plugins)
-    from reneus_mi.data import load_dataset
+    from reneus_mi.config import ReconstructionConfig
+    from reneus_mi.presets import preset
     from reneus_mi.render import load_scene
-    scene = load_scene(scene_path)
-    integrator = scene.integrator()
-    if not hasattr(integrator, 'trace'):
-        raise ValueError(f'{scene_path}: the integrator is {type(integrator).__name__}; '
-                         'expected <integrator type="reneus">')
+    from reneus_mi.runs import RunSpec
+    integrator = load_scene(scene_path).integrator()
+    if not hasattr(integrator, 'render_rays'):
+        raise ReneusError(f'{scene_path}: the integrator is {type(integrator).__name__}; '
+                          'expected <integrator type="reneus">')
     data = data or integrator.dataset
     if not data:
-        raise ValueError(f'{scene_path}: no dataset: give the integrator '
-                         '<string name="dataset" value="FOLDER"/> or pass --data')
+        raise ReneusError(f'{scene_path}: no dataset: give the integrator '
+                          '<string name="dataset" value="FOLDER"/> or pass --data')
     if not os.path.isabs(data):
         data = os.path.join(os.path.dirname(os.path.abspath(scene_path)), data)
-    return scene, load_dataset(data, need_container=integrator.mode != 'neus')
+    config = ReconstructionConfig(model=integrator.model, train=preset(integrator.preset).train)
+    return RunSpec(scene_path, data, config, integrator.preset)
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog='python -m reneus_mi.optimize',
                                      description=__doc__.split('\n\n')[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                     epilog=__doc__.split('\n\n', 1)[1])
     parser.add_argument('scene', nargs='?', help='Mitsuba scene XML with <integrator type="reneus">')
     parser.add_argument('--data', help="dataset folder (overrides the integrator's 'dataset')")
     parser.add_argument('-o', '--output', help='output folder (default: runs/<scene name>)')
     parser.add_argument('--resume', action='store_true', help="continue the output folder's run")
     parser.add_argument('--demo', action='store_true', help='reconstruct the embedded demo scene')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
-    cli.add_arguments(parser, TrainConfig)
+    cli.add_arguments(parser, TrainConfig, default_note="the preset's")
     args = parser.parse_args(argv)
-
     try:
-        summary = run(args)
-    except (ValueError, OSError) as e:
+        print(run(args))
+    except ValueError as e:  # ReneusError and the data loaders' errors
         raise SystemExit(f'error: {e}') from None
+    except (OSError, RuntimeError) as e:
+        raise SystemExit(f'error: {user_message(e)}') from None
     except KeyboardInterrupt:
         raise SystemExit('interrupted: checkpoint written; continue with --resume') from None
-    print(summary)
     return 0
 
 
 def run(args) -> str:
-    from reneus_mi.errors import user_message
-    from reneus_mi.trainer import Trainer, TrainingError
-    from reneus_mi.io import atomic_write_text
-
-    demo = args.demo or args.scene is None
-    base = TrainConfig(**DEMO_TRAIN) if demo else TrainConfig()
-    out = args.output or os.path.join('runs', 'demo' if demo else
-                                      os.path.splitext(os.path.basename(args.scene))[0])
-    config_path = os.path.join(out, 'config.json')
+    from reneus_mi import runs
+    from reneus_mi.config import replace
+    if args.scene is None and not args.demo and not args.resume:
+        raise ReneusError('no scene given: pass a scene XML (python -m reneus_mi.scene DATA -o '
+                          'scene.xml writes one), or --demo for the embedded demo')
+    name = 'demo' if args.demo else os.path.splitext(os.path.basename(args.scene or ''))[0]
+    out = args.output or os.path.join('runs', name)
     if args.resume:
-        if not os.path.isfile(config_path):
-            raise ValueError(f'{out}: nothing to resume (no config.json)')
-        with open(config_path) as f:
-            saved = json.load(f)
-        base = TrainConfig(**saved['train'])
-        scene_path, data = saved['scene'], saved['data']
+        spec = runs.read_spec(out)
+        if args.scene or args.data:
+            raise ReneusError(f'{out}: --resume continues the run recorded in its config.json; '
+                              'a scene or --data cannot be given with it')
     else:
-        if os.path.isfile(os.path.join(out, 'checkpoint.npz')):
-            raise ValueError(f'{out} already holds a run; continue it with --resume or choose '
-                             'another --output')
-        scene_path = make_demo(os.path.join(out, 'data')) if demo else args.scene
-        data = args.data
-    cfg = cli.from_arguments(TrainConfig, args, base)
-
-    try:
-        scene, dataset = load(scene_path, data)
-    except RuntimeError as e:
-        raise ValueError(user_message(e)) from None
-    trainer = Trainer(scene, dataset, cfg, out)
-    os.makedirs(out, exist_ok=True)
-    if args.resume:
-        trainer.resume()
-    atomic_write_text(config_path, json.dumps({
-        'train': dataclasses.asdict(cfg), 'scene': os.path.abspath(scene_path),
-        'data': os.path.abspath(dataset.root),
-        'integrator': scene.integrator().to_string()}, indent=2))
-    try:
-        result = trainer.run(progress=not args.quiet)
-    except TrainingError as e:
-        raise ValueError(str(e)) from None
-    lines = [f"done: {result['iterations']} iterations in {result['seconds']:.0f} s, "
-             f"PSNR {result['psnr']:.2f} dB (last 100 steps); mesh {result['mesh']}; "
-             f"renders {os.path.join(out, 'images')}"]
-    if dataset.gt_mesh:
+        if os.path.isfile(os.path.join(out, runs.CHECKPOINT_FILE)):
+            raise ReneusError(f'{out} already holds a run; continue it with --resume or choose '
+                              'another --output')
+        scene = make_demo(os.path.join(out, 'data')) if args.demo else args.scene
+        spec = spec_of_scene(scene, args.data)
+    given = cli.given_arguments(TrainConfig, args)
+    spec.config = replace(spec.config, **{f'train.{k}': v for k, v in given.items()})
+    result = runs.run(spec, out, resume=args.resume, progress=not args.quiet)
+    if 'failure' in result:
+        raise ReneusError(result['failure'])
+    cfg = spec.config.train
+    ended = (f"stopped by the time budget ({cfg.max_minutes:g} min) after {result['iterations']} iterations"
+             if result['stopped_by_budget'] else f"done: {result['iterations']} iterations")
+    lines = [f"{ended} in {result['seconds']:.0f} s"
+             + (f", PSNR {result['psnr']:.2f} dB (last 100 steps)" if result['psnr'] == result['psnr'] else '')
+             + f"; mesh {result['mesh']}"
+             + (f"; renders {os.path.join(out, 'images')}" if cfg.validate_every else '')]
+    from reneus_mi.data import load_dataset
+    gt = load_dataset(spec.data, need_container=False).gt_mesh
+    if gt:
         from reneus_mi.evaluate import chamfer, load_mesh
-        c = chamfer(load_mesh(result['mesh']), load_mesh(dataset.gt_mesh))
-        lines.append(f"Chamfer-L1 x100 to the ground truth: {c['chamfer']:.3f} "
-                     f"(postprocess {cfg.postprocess})")
+        c = chamfer(load_mesh(result['mesh']), load_mesh(gt))
+        lines.append(f"Chamfer-L1 x100 to the ground truth: {c['chamfer']:.3f} (postprocess {cfg.postprocess})")
     return '\n'.join(lines)
 
 

@@ -1,12 +1,15 @@
 """Fitting the ``reneus`` integrator's field to posed photographs (Sec. 3.4).
 
 Each step draws ``batch_rays`` pixels at random among the container-mask
-pixels of all views, traces them with :meth:`ReNeuSIntegrator.trace`, and
-takes one Adam step on L = L_color + λ1 L_trans + λ2 L_reg. The run lives in
-one output folder::
+pixels of all views (:class:`~reneus_mi.pixel_sampler.PixelSampler`), renders
+them with :meth:`ReNeuSIntegrator.render_rays` (what ``mi.render`` runs too),
+and takes one ``mi.ad.Adam`` step on L = L_color + λ1 L_trans + λ2 L_reg. The
+parameters are ``mi.traverse(scene)``'s view of the field's own arrays, updated
+with ``params.update(opt)``, as in a hand-written Mitsuba optimisation loop.
+The run lives in one output folder::
 
-    config.json       the TrainConfig and where the scene and data came from
-    log.jsonl         one line per step: losses, PSNR, learning rate, s, rays/s
+    config.json       the whole configuration and where the scene and data came from
+    log.jsonl         one line every log_every steps: losses, PSNR, learning rate, s, rays/s
     checkpoint.npz    the latest checkpoint (atomic; --resume continues from it)
     images/           validation renders (image | photograph) and normal maps
     meshes/           mesh snapshots (64^3) at validation steps
@@ -14,10 +17,13 @@ one output folder::
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
+import threading
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import drjit as dr
 import mitsuba as mi
@@ -27,17 +33,20 @@ from drjit.opt import GradScaler
 from reneus_mi import checkpoint, losses
 from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
-from reneus_mi.fields import load_field
+from reneus_mi.errors import ReneusError
 from reneus_mi.extract import field_mesh, write_mesh
+from reneus_mi.fields import load_field
+from reneus_mi.frame import FieldFrame
 from reneus_mi.io import atomic_write_text
-from reneus_mi.variant import is_cuda
+from reneus_mi.pixel_sampler import JITTER, PixelSampler, step_seed
 from reneus_mi.render import write_image
+from reneus_mi.variant import is_cuda
 
 #: Rays per kernel launch when rendering a whole view.
 RENDER_CHUNK = 1 << 14
 
 
-class TrainingError(RuntimeError):
+class TrainingError(ReneusError):
     """The run cannot go on (NaN or diverging loss); the last checkpoint is intact."""
 
 
@@ -53,26 +62,40 @@ class StepStats:
     rays_per_s: float
 
 
+def field_parameters(scene: mi.Scene) -> mi.SceneParameters:
+    """``mi.traverse(scene)`` kept to the integrator's field parameters (the field's own arrays)."""
+    params = mi.traverse(scene)
+    own = [id(v) for v in scene.integrator().field.params().values()]
+    # The raw entries: reading through params[k] would mark every key for update.
+    params.keep([k for k, (value, *_) in params.properties.items() if id(value) in own])
+    return params
+
+
 class Trainer:
     """One reconstruction: a scene, its dataset, the field and its optimiser."""
 
-    def __init__(self, scene: mi.Scene, dataset: Dataset, cfg: TrainConfig, out_dir: str):
+    def __init__(self, scene: mi.Scene, dataset: Dataset, cfg: TrainConfig, out_dir: str, *,
+                 frame: FieldFrame | None = None):
         integrator = scene.integrator()
-        if not hasattr(integrator, 'trace'):
-            raise ValueError(f'the scene\'s integrator is {type(integrator).__name__}; expected '
-                             '<integrator type="reneus">')
-        self.scene, self.integrator, self.ds, self.cfg, self.out = scene, integrator, dataset, cfg, out_dir
+        if not hasattr(integrator, 'render_rays'):
+            raise ReneusError(f'the scene\'s integrator is {type(integrator).__name__}; expected '
+                              '<integrator type="reneus">')
         if not 0 <= cfg.validation_view < len(dataset):
-            raise ValueError(f'validation_view={cfg.validation_view}: the dataset has {len(dataset)} views')
-        # Flat indices (view, y, x) of the pixels inside the container mask M_in.
-        self.pixels = np.flatnonzero(dataset.masks.reshape(-1))
-        if len(self.pixels) == 0:
-            raise ValueError(f'{dataset.root}: no view sees the container (all masks are empty)')
-        self.colors = dataset.images.reshape(-1, 3)
-        self.rng = np.random.default_rng(cfg.seed)
+            raise ReneusError(f'validation_view={cfg.validation_view}: the dataset has {len(dataset)} views')
+        self.scene, self.integrator, self.ds, self.cfg, self.out = scene, integrator, dataset, cfg, out_dir
+        self.container = dataset.container
+        self.frame = frame or integrator.frame_of(scene)
+        self.pixels = PixelSampler(dataset, cfg.seed)
         self.iteration = 0
         self.best_loss = float('inf')
-        self.opt = mi.ad.Adam(lr=cfg.learning_rate, params=self.field.params())
+        self._setup_optimizer()
+
+    def _setup_optimizer(self) -> None:
+        self.params = field_parameters(self.scene)
+        self.opt = mi.ad.Adam(lr=self.cfg.learning_rate, params=self.params)
+        # From here on the field computes with the optimiser's variables.
+        self.params.update(self.opt)
+        self._lr_scale = {key: self.field.lr_scale().get(self._name(key), 1.0) for key in self.opt.keys()}
         # Half-precision networks (CUDA) need loss scaling; an array scale
         # keeps the scaler's first back-off from recompiling the kernels.
         self.scaler = GradScaler(init_scale=mi.Float(2.0 ** 16)) if is_cuda() else None
@@ -81,84 +104,80 @@ class Trainer:
     def field(self):
         return self.integrator.field
 
+    def _name(self, key: str) -> str:
+        """The field's name of a ``mi.traverse`` key (``field.sdf.weights`` -> ``sdf.weights``)."""
+        names = {id(v): k for k, v in self.field.params().items()}
+        return names[id(self.params.properties[key][0])]
+
     # ------------------------------------------------------------ checkpoints
     @property
     def checkpoint_path(self) -> str:
         return os.path.join(self.out, 'checkpoint.npz')
 
     def save_checkpoint(self) -> None:
-        # The field holds the weights of the last step's forward pass; the
-        # optimiser holds the updated ones, which the checkpoint must carry.
-        with dr.suspend_grad():
-            self.field.set_params(self.opt)
-        checkpoint.save(self.checkpoint_path, self.field, self.opt, iteration=self.iteration,
-                        rng=self.rng, best_loss=self.best_loss, frame=self.frame)
+        names = {key: self._name(key) for key in self.opt.keys()}
+        checkpoint.save(self.checkpoint_path, self.field, self.opt, names, iteration=self.iteration,
+                        best_loss=self.best_loss, frame=self.frame, container=self.container,
+                        scaler=self.scaler)
 
     def resume(self) -> None:
         """Continue from the output folder's checkpoint, exactly where it was written."""
         path = self.checkpoint_path
         if not os.path.isfile(path):
-            raise ValueError(f'{path}: no checkpoint to resume from')
-        self.integrator.field = load_field(path)
-        self.opt = mi.ad.Adam(lr=self.cfg.learning_rate, params=self.field.params())
-        meta = checkpoint.restore(path, self.opt)
+            raise ReneusError(f'{path}: no checkpoint to resume from')
+        self.integrator.configure(self.integrator.model, load_field(path))
+        self._setup_optimizer()
+        names = {key: self._name(key) for key in self.opt.keys()}
+        meta = checkpoint.restore(path, self.opt, names, self.scaler)
         self.iteration = meta['iteration']
-        self.rng.bit_generator.state = meta['rng']
         self.best_loss = meta['best_loss']
         _truncate_log(os.path.join(self.out, 'log.jsonl'), self.iteration)
 
     # ------------------------------------------------------------- training
-    def batch(self):
-        """Random camera rays inside the masks, their target colours and jitters."""
-        n = self.cfg.batch_rays
-        index = self.pixels[self.rng.integers(0, len(self.pixels), n)]
-        h, w = self.ds.height, self.ds.width
-        view, rest = np.divmod(index, h * w)
-        y, x = np.divmod(rest, w)
-        o, d = self.ds.rays(view, np.stack([x, y], axis=1))
-        target = self.colors[index]
-        jitter = self.rng.random(n)
-        return _ray(o, d), mi.Color3f(*target.T.astype(np.float32)), mi.Float(jitter.astype(np.float32))
-
     def step(self) -> StepStats:
         """One optimisation step; raises TrainingError before a bad update is applied."""
+        from reneus_mi.plugins.reneus import StepState
         cfg, it = self.cfg, self.iteration
         start = time.perf_counter()
-        ray, target, jitter = self.batch()
-        self.field.set_params(self.opt)
-        result = self.integrator.trace(self.scene, ray, jitter=jitter,
-                                       cos_anneal_ratio=cfg.cos_anneal_ratio(it))
-        pred = self.integrator.tonemap(result.L)
-        l_color = losses.color_l1(pred, target)
+        self.integrator.begin_step(StepState(step=it, cos_anneal_ratio=cfg.cos_anneal_ratio(it),
+                                             jitter_seed=step_seed(cfg.seed, it, JITTER)))
+        ray, target = self.pixels.batch(it, cfg.batch_rays)
+        result = self.integrator.render_rays(self.scene, ray)
+        l_color = losses.color_l1(result.color, target)
         l_trans = losses.transmittance_sparsity(result.sparsity)
         l_eik = losses.eikonal(result.eikonal, result.n_samples)
         loss = l_color + cfg.trans_weight * l_trans + cfg.eikonal_weight * l_eik
+        mse = dr.mean(dr.square(dr.detach(result.color) - target), axis=None)
         # Scheduled, the loss terms are computed in the launch that evaluates
         # the gradients rather than in a forward pass of their own.
-        dr.schedule(loss, l_color, l_trans, l_eik, pred)
+        dr.schedule(loss, l_color, l_trans, l_eik, mse)
         dr.backward(self.scaler.scale(loss) if self.scaler else loss)
-        grads = [dr.grad(self.opt[key]) for key in self.opt.keys()]
-        dr.eval(grads)
-        self._check(float(loss[0]), it)
+        grads = {key: dr.grad(self.opt[key]) for key in self.opt.keys()}
         # With loss scaling, an overflowing gradient is the scaler's to skip.
-        for key, grad in zip(self.opt.keys(), grads):
-            if not self.scaler and not dr.all(dr.isfinite(grad)):
+        finite = {key: dr.all(dr.isfinite(g)) for key, g in grads.items()} if not self.scaler else {}
+        dr.eval(grads, finite)
+        # The step's one synchronisation with the device: the loss and the checks.
+        value = float(loss[0])
+        self._check(value, it)
+        for key, ok in finite.items():
+            if not bool(ok[0]):
                 raise TrainingError(f'step {it}: the gradient of {key!r} is not finite; stopped '
                                     f'before updating, the last checkpoint ({self.checkpoint_path}) is intact')
         lr = cfg.learning_rate_at(it)
-        self.opt.set_learning_rate(lr)
+        self.opt.set_learning_rate({key: lr * s for key, s in self._lr_scale.items()})
         if self.scaler:
             self.scaler.step(self.opt)
         else:
             self.opt.step()
+        self.params.update(self.opt)
         self.iteration += 1
-        value = float(loss[0])
         self.best_loss = min(self.best_loss, value)
-        dr.sync_thread()
         elapsed = time.perf_counter() - start
+        m = float(mse[0])
         return StepStats(loss=value, color=float(l_color[0]), trans=float(l_trans[0]),
-                         eikonal=float(l_eik[0]), psnr=losses.psnr(pred, target), learning_rate=lr,
-                         inv_s=float(self.field.inv_s()[0]), rays_per_s=cfg.batch_rays / elapsed)
+                         eikonal=float(l_eik[0]), psnr=float('inf') if m == 0 else -10.0 * np.log10(m),
+                         learning_rate=lr, inv_s=float(self.field.inv_s()[0]),
+                         rays_per_s=cfg.batch_rays / elapsed)
 
     def _check(self, value: float, it: int) -> None:
         if not np.isfinite(value):
@@ -170,20 +189,20 @@ class Trainer:
                                 f'rate; the last checkpoint ({self.checkpoint_path}) is intact')
 
     # ---------------------------------------------------------- validation
-    def render_view(self, view: int, scale: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        """Image (gamma-encoded) and normal map of a view, every ``scale``-th pixel."""
-        h, w = self.ds.height, self.ds.width
-        ys, xs = np.mgrid[0:h:scale, 0:w:scale]
-        px = np.stack([xs.ravel(), ys.ravel()], axis=1)
-        o, d = self.ds.rays(np.full(len(px), view), px)
+    def render_view(self, view: int, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Image (gamma-encoded) and normal map of a view, every ``stride``-th pixel."""
+        from reneus_mi.plugins.reneus import StepState
+        index = self.pixels.view(view, stride)
         colors, normals = [], []
         with dr.suspend_grad():
-            self.field.set_params(self.opt)
-            for s in range(0, len(px), RENDER_CHUNK):
-                r = self.integrator.trace(self.scene, _ray(o[s:s + RENDER_CHUNK], d[s:s + RENDER_CHUNK]))
-                colors.append(np.array(self.integrator.tonemap(r.L)).T)
+            state, self.integrator.state = self.integrator.state, StepState(step=self.iteration)
+            for s in range(0, dr.width(index), RENDER_CHUNK):
+                chunk = dr.gather(mi.UInt32, index, dr.arange(mi.UInt32, s, min(s + RENDER_CHUNK, dr.width(index))))
+                r = self.integrator.render_rays(self.scene, self.pixels.rays(chunk))
+                colors.append(np.array(r.color).T)
                 normals.append(np.array(dr.normalize(r.normal)).T)
-        shape = ys.shape + (3,)
+            self.integrator.state = state
+        shape = (len(range(0, self.ds.height, stride)), len(range(0, self.ds.width, stride)), 3)
         return np.concatenate(colors).reshape(shape), np.nan_to_num(np.concatenate(normals)).reshape(shape)
 
     def validate(self) -> None:
@@ -195,40 +214,33 @@ class Trainer:
         write_image(normals * 0.5 + 0.5, os.path.join(self.out, 'images', f'{self.iteration:06d}_normal.png'))
         self.write_mesh(os.path.join(self.out, 'meshes', f'{self.iteration:06d}.ply'), resolution=64)
 
-    @property
-    def frame(self) -> dict:
-        """The field's frame and the container, as checkpoints record them."""
-        c, r = np.array(self.integrator.field_center), self.integrator.field_scale
-        bbox = self.scene.bbox()
-        # Without a container (NeuS on box-free data) the field's sphere bounds the mesh.
-        lo, hi = (np.array(bbox.min), np.array(bbox.max)) if bbox.valid() else (c - r, c + r)
-        return {'center': c.tolist(), 'scale': r, 'lo': lo.tolist(), 'hi': hi.tolist(),
-                'container': self.ds.container}
-
     def write_mesh(self, path: str, resolution: int | None = None):
-        with dr.suspend_grad():
-            self.field.set_params(self.opt)
-        mesh = field_mesh(self.field, self.frame, resolution or self.cfg.mesh_resolution, self.cfg.postprocess)
+        mesh = field_mesh(self.field, self.frame, resolution or self.cfg.mesh_resolution,
+                          self.cfg.postprocess, self.container)
         write_mesh(mesh, path)
         return mesh
 
     # ----------------------------------------------------------------- loop
     def run(self, progress: bool = True) -> dict:
-        """Train to ``cfg.iterations``, checkpointing and validating on the way."""
+        """Train to ``cfg.iterations`` (or the time budget), checkpointing and validating on the way."""
         from tqdm import tqdm
         cfg = self.cfg
         os.makedirs(self.out, exist_ok=True)
         log_path = os.path.join(self.out, 'log.jsonl')
         start, psnrs = time.perf_counter(), []
+        budget = cfg.max_minutes * 60.0 if cfg.max_minutes > 0 else float('inf')
         bar = tqdm(total=cfg.iterations, initial=self.iteration, disable=not progress,
                    unit='it', dynamic_ncols=True)
         try:
-            with open(log_path, 'a') as log:
-                while self.iteration < cfg.iterations:
+            with open(log_path, 'a') as log, _deferred_interrupt() as interrupted:
+                while self.iteration < cfg.iterations and time.perf_counter() - start < budget:
+                    if interrupted():
+                        raise KeyboardInterrupt
                     stats = self.step()
                     psnrs = (psnrs + [stats.psnr])[-100:]
-                    log.write(json.dumps({'iteration': self.iteration, **stats.__dict__}) + '\n')
-                    log.flush()
+                    if self.iteration % cfg.log_every == 0:
+                        log.write(json.dumps({'iteration': self.iteration, **asdict(stats)}) + '\n')
+                        log.flush()
                     bar.update(1)
                     bar.set_postfix(loss=f'{stats.loss:.4f}', psnr=f'{stats.psnr:.2f}',
                                     rays_s=f'{stats.rays_per_s:.0f}', refresh=False)
@@ -245,12 +257,22 @@ class Trainer:
         mesh_path = os.path.join(self.out, 'mesh.ply')
         self.write_mesh(mesh_path)
         return {'iterations': self.iteration, 'seconds': time.perf_counter() - start,
-                'psnr': float(np.mean(psnrs)) if psnrs else float('nan'), 'mesh': mesh_path}
+                'psnr': float(np.mean(psnrs)) if psnrs else float('nan'), 'mesh': mesh_path,
+                'stopped_by_budget': self.iteration < cfg.iterations}
 
 
-def _ray(o: np.ndarray, d: np.ndarray) -> mi.Ray3f:
-    o, d = o.astype(np.float32), d.astype(np.float32)
-    return mi.Ray3f(mi.Point3f(*o.T), mi.Vector3f(*d.T))
+@contextlib.contextmanager
+def _deferred_interrupt():
+    """Ctrl-C ends the loop between steps, never inside one (a checkpoint then holds a whole step)."""
+    flag = []
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    previous = signal.signal(signal.SIGINT, lambda *_: flag.append(True))
+    try:
+        yield lambda: bool(flag)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _truncate_log(path: str, iteration: int) -> None:

@@ -72,5 +72,5 @@ def path_reference(scene, spp: int, seed: int = 0) -> tuple[np.ndarray, np.ndarr
 
 
 def reneus_pixels(scene) -> np.ndarray:
-    result = scene.integrator().trace(scene, pixel_rays(scene))
+    result = scene.integrator().render_rays(scene, pixel_rays(scene))
     return np.array(result.L).T

@@ -83,7 +83,7 @@ def test_depth_zero_sees_only_the_first_segment():
     # image is the ambient where the ray misses the block and black where it hits.
     scene = reneus_scene(RES, max_depth=0, terminal='black')
     image = reneus_pixels(scene)
-    mask = np.array(scene.integrator().trace(scene, _rays(scene)).mask)
+    mask = np.array(scene.integrator().render_rays(scene, _rays(scene)).mask)
     assert np.allclose(image[~mask], 0.8, atol=1e-6)
     assert np.allclose(image[mask], 0.0, atol=1e-6)
     assert 0.2 < mask.mean() < 0.8
@@ -148,11 +148,13 @@ GLASS = '<shape type="cube"><bsdf type="dielectric"><float name="int_ior" value=
 def test_xml_with_every_parameter():
     scene = mi.load_string(XML.format(mode='reneus', depth=3, shape=GLASS))
     it = scene.integrator()
-    assert (it.mode, it.max_depth, it.n_coarse, it.n_fine, it.n_upsample_steps) == ('reneus', 3, 16, 8, 2)
-    assert (it.upsample_s, it.gamma, it.aovs_enabled, it.dataset) == (32.0, 2.2, True, 'some/folder')
-    assert it.field_center == (0.1, 0.0, 0.0) and it.field_scale == 1.5
+    render, sampler = it.model.render, it.model.sampler
+    assert (render.mode, render.max_depth, render.gamma, render.aovs) == ('reneus', 3, 2.2, True)
+    assert (sampler.n_coarse, sampler.n_fine, sampler.n_upsample_steps, sampler.upsample_s) == (16, 8, 2, 32.0)
+    assert it.dataset == 'some/folder'
+    assert it.frame.center == (0.1, 0.0, 0.0) and it.frame.scale == 1.5
     assert it.field.radius == 0.25 and it.field.color == pytest.approx((0.2, 0.5, 0.7))
-    assert float(it._container_eta(scene)[0]) == pytest.approx(1.5 / 1.000277, rel=1e-5)
+    assert float(it._bind(scene).eta[0]) == pytest.approx(1.5 / 1.000277, rel=1e-5)
 
 
 @pytest.mark.parametrize('mode, depth, shape, message', [
@@ -224,7 +226,7 @@ def test_trace_gradient_of_sharpness_matches_finite_differences():
 
     def loss(variance):
         it.field.set_params({'variance': variance})
-        return dr.sum(dr.sum(it.tonemap(it.trace(scene, ray).L) * mi.Color3f(*w)))
+        return dr.sum(dr.sum(it.render_rays(scene, ray).color * mi.Color3f(*w)))
 
     v = mi.Float(0.25)
     dr.enable_grad(v)
@@ -235,9 +237,8 @@ def test_trace_gradient_of_sharpness_matches_finite_differences():
     assert fd == pytest.approx(float(dr.grad(v)[0]), rel=0.02)
 
 
-TINY_NEUS = dict(field='neus', n_coarse=24, n_fine=0, gamma=2.2, field_hidden=16, field_layers=2,
-                 field_n_features=4, field_color_hidden=16, field_color_layers=1, field_multires=2,
-                 field_multires_view=1, field_init_radius=0.3, field_init_variance=0.25)
+#: The tiny preset's field, coarse samples only (see test_render_gradients_match_finite_differences).
+TINY_NEUS = dict(preset='tiny', field='neus', n_coarse=24, n_fine=0, gamma=2.2, field_init_variance=0.25)
 
 
 def test_untrained_field_renders_a_sphere():
@@ -250,7 +251,7 @@ def test_untrained_field_renders_a_sphere():
     scene = reneus_scene(32, **{**TINY_NEUS, 'mode': 'neus', 'field_init_radius': 0.35,
                                 'field_activation': 'sine', 'field_init_variance': 0.5})
     ray = pixel_rays(scene)
-    opacity = np.array(scene.integrator().trace(scene, ray).sparsity)
+    opacity = np.array(scene.integrator().render_rays(scene, ray).sparsity)
     o, d = np.array(ray.o).T, np.array(ray.d).T
     b = (o * d).sum(axis=1)
     hits = b * b - ((o * o).sum(axis=1) - 0.35 ** 2) > 0

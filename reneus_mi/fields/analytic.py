@@ -5,19 +5,87 @@ hard-surfaced emitter that Mitsuba's path tracer can render too) and demos.
 """
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar
+
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.fields.base import Field
+from reneus_mi.errors import ReneusError, check_numbers
+from reneus_mi.fields.base import Field, FieldConfig
+
+Vector = tuple[float, float, float]
+
+
+@dataclass
+class AnalyticFieldConfig(FieldConfig):
+    color: Vector = (1.0, 1.0, 1.0)
+    """Constant linear radiance of the surface."""
+    inv_s: float = 2000.0
+    """Fixed sharpness s of NeuS's density."""
+    center: Vector = (0.0, 0.0, 0.0)
+    """Centre of the shape in the field's frame (the unit sphere)."""
+
+    def __post_init__(self):
+        for name in ('color', 'center'):
+            value = getattr(self, name)
+            if len(value) != 3:
+                raise ReneusError(f'{self.kind}: {name}={value!r}; expected 3 numbers')
+            setattr(self, name, tuple(float(v) for v in value))
+        check_numbers(self, positive=('inv_s',))
+
+
+@dataclass
+class SphereFieldConfig(AnalyticFieldConfig):
+    kind: ClassVar[str] = 'sphere'
+    radius: float = 0.5
+    """Radius of the sphere."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        check_numbers(self, positive=('radius',))
+
+
+@dataclass
+class BoxFieldConfig(AnalyticFieldConfig):
+    kind: ClassVar[str] = 'box'
+    half_size: Vector = (0.3, 0.3, 0.3)
+    """Half the box's extent along x, y and z."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        if len(self.half_size) != 3 or not all(h > 0 for h in self.half_size):
+            raise ReneusError(f'box: half_size={self.half_size!r}; expected 3 positive numbers')
+        self.half_size = tuple(float(h) for h in self.half_size)
+
+
+@dataclass
+class TorusFieldConfig(AnalyticFieldConfig):
+    kind: ClassVar[str] = 'torus'
+    major: float = 0.4
+    """Radius of the torus's centre circle (around the z axis)."""
+    minor: float = 0.15
+    """Radius of the tube."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        check_numbers(self, positive=('major', 'minor'))
 
 
 class AnalyticField(Field):
     """Common part: constant radiance ``color`` and fixed sharpness ``inv_s``."""
 
-    def __init__(self, color=(1.0, 1.0, 1.0), inv_s: float = 2000.0, center=(0.0, 0.0, 0.0)):
-        self.color = tuple(float(c) for c in color)
-        self.inv_s_value = float(inv_s)
-        self.center = tuple(float(c) for c in center)
+    Config: ClassVar[type] = AnalyticFieldConfig
+
+    def __init__(self, **kwargs):
+        try:
+            self.cfg = self.Config(**kwargs)
+        except TypeError:
+            known = [f.name for f in dataclasses.fields(self.Config)]
+            raise ReneusError(f'{self.Config.kind} field: unknown option(s) '
+                              f'{sorted(set(kwargs) - set(known))}; expected some of {known}') from None
+        self.color, self.inv_s_value, self.center = self.cfg.color, self.cfg.inv_s, self.cfg.center
 
     def _local(self, x: mi.Point3f) -> mi.Vector3f:
         return mi.Vector3f(x - mi.Point3f(*self.center))
@@ -46,25 +114,26 @@ class AnalyticField(Field):
         return mi.Float(self.inv_s_value)
 
     def config(self):
-        return {'color': list(self.color), 'inv_s': self.inv_s_value, 'center': list(self.center)}
+        return dataclasses.asdict(self.cfg)
 
 
 class SphereField(AnalyticField):
-    def __init__(self, radius: float = 0.5, **kwargs):
+    Config = SphereFieldConfig
+
+    def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.radius = float(radius)
+        self.radius = self.cfg.radius
 
     def _distance(self, p):
         return dr.norm(p) - self.radius
 
-    def config(self):
-        return {**super().config(), 'radius': self.radius}
-
 
 class BoxField(AnalyticField):
-    def __init__(self, half_size=(0.3, 0.3, 0.3), **kwargs):
+    Config = BoxFieldConfig
+
+    def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.half_size = tuple(float(h) for h in half_size)
+        self.half_size = self.cfg.half_size
 
     def _distance(self, p):
         q = dr.abs(p) - mi.Vector3f(*self.half_size)
@@ -72,20 +141,16 @@ class BoxField(AnalyticField):
         outside = dr.sqrt(dr.maximum(dr.squared_norm(dr.maximum(q, 0.0)), 1e-30))
         return outside + dr.minimum(dr.max(q), 0.0)
 
-    def config(self):
-        return {**super().config(), 'half_size': list(self.half_size)}
-
 
 class TorusField(AnalyticField):
     """Torus around the z axis: major radius ``major``, tube radius ``minor``."""
 
-    def __init__(self, major: float = 0.4, minor: float = 0.15, **kwargs):
+    Config = TorusFieldConfig
+
+    def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.major, self.minor = float(major), float(minor)
+        self.major, self.minor = self.cfg.major, self.cfg.minor
 
     def _distance(self, p):
         q = dr.sqrt(p.x * p.x + p.y * p.y) - self.major
         return dr.sqrt(q * q + p.z * p.z) - self.minor
-
-    def config(self):
-        return {**super().config(), 'major': self.major, 'minor': self.minor}

@@ -20,8 +20,10 @@ which is what both ``mi.traverse`` and ``mi.ad.Adam`` want.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+from typing import ClassVar
 
 import drjit as dr
 import mitsuba as mi
@@ -31,6 +33,17 @@ from reneus_mi.io import atomic_savez
 
 # Vertices of a regular tetrahedron, |e_k|^2 = 3 and sum_k e_k e_k^T = 4 I.
 _TETRA = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1.0, 1.0))
+
+
+class FieldConfig:
+    """Base of the field configurations (dataclasses): ``kind`` names the field they build."""
+
+    kind: ClassVar[str] = ''
+
+    def setup(self) -> 'Field':
+        """The field this configuration describes, freshly initialised."""
+        from reneus_mi.fields import FIELDS
+        return FIELDS[self.kind](**dataclasses.asdict(self))
 
 
 class Field:
@@ -52,6 +65,13 @@ class Field:
 
     def inv_s(self) -> mi.Float:
         raise NotImplementedError
+
+    def lr_scale(self) -> dict[str, float]:
+        """Learning-rate factor of each parameter group (keys of :meth:`params`; 1 if absent)."""
+        return {}
+
+    def set_step(self, step: int) -> None:
+        """Follow the training schedule (e.g. open hash-grid levels); nothing by default."""
 
     def sdf(self, x: mi.Point3f) -> mi.Float:
         return self.geometry(x)[0]

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import drjit as dr
 import drjit.nn as nn
@@ -23,7 +24,8 @@ import mitsuba as mi
 import numpy as np
 
 from reneus_mi.fields.activations import Sine, SkipMLP, Softplus
-from reneus_mi.fields.base import Field
+from reneus_mi.errors import ReneusError, check_choice, check_numbers
+from reneus_mi.fields.base import Field, FieldConfig
 from reneus_mi.variant import is_cuda
 
 # SIREN's last layer is scaled down by this factor in the SDF head only: the
@@ -33,8 +35,10 @@ _SIREN_SDF_GAIN = 1e-2
 
 
 @dataclass
-class NeuSFieldConfig:
+class NeuSFieldConfig(FieldConfig):
     """Architecture of :class:`NeuSField`; the defaults are NeuS's (and ReNeuS's)."""
+
+    kind: ClassVar[str] = 'neus'
 
     hidden: int = 256
     """Width of the SDF network."""
@@ -70,28 +74,15 @@ class NeuSFieldConfig:
     """Seed of the weight initialisation."""
 
     def __post_init__(self):
-        positive = ('hidden', 'layers', 'n_features', 'color_hidden', 'color_layers')
-        for name in positive:
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f'NeuSField: {name}={value!r}, expected a positive integer')
-        for name in ('multires', 'multires_view', 'seed'):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
-                raise ValueError(f'NeuSField: {name}={value!r}, expected a non-negative integer')
-        for name in ('beta', 'omega_0', 'init_radius', 'fd_step'):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not value > 0 or not math.isfinite(value):
-                raise ValueError(f'NeuSField: {name}={value!r}, expected a positive number')
-        if not isinstance(self.init_variance, (int, float)) or not math.isfinite(self.init_variance):
-            raise ValueError(f'NeuSField: init_variance={self.init_variance!r}, expected a finite number')
+        check_numbers(self, positive=('hidden', 'layers', 'n_features', 'color_hidden', 'color_layers',
+                                      'beta', 'omega_0', 'init_radius', 'fd_step'),
+                      at_least_zero=('multires', 'multires_view', 'seed'))
+        check_numbers(self, finite=('init_variance',))
         if not self.init_radius < Field.bound:
-            raise ValueError(f'NeuSField: init_radius={self.init_radius!r}, expected a radius below '
-                             f'the field bound {Field.bound}')
-        if self.activation not in ('softplus', 'sine'):
-            raise ValueError(f"NeuSField: activation={self.activation!r}, expected 'softplus' or 'sine'")
-        if self.dtype not in ('auto', 'float32', 'float16'):
-            raise ValueError(f"NeuSField: dtype={self.dtype!r}, expected 'auto', 'float32' or 'float16'")
+            raise ReneusError(f'neus: init_radius={self.init_radius!r}; expected a radius below '
+                              f'the field bound {Field.bound}')
+        check_choice(self, 'activation', ('softplus', 'sine'))
+        check_choice(self, 'dtype', ('auto', 'float32', 'float16'))
 
 
 def positional_encoding(values: list, octaves: int) -> list:
@@ -254,13 +245,15 @@ class NeuSField(Field):
     sphere, ``bound`` = 1).
     """
 
+    Config = NeuSFieldConfig
+
     def __init__(self, config: NeuSFieldConfig | None = None, **kwargs):
         try:
             cfg = dataclasses.replace(config or NeuSFieldConfig(), **kwargs)
         except TypeError:
             known = {f.name for f in dataclasses.fields(NeuSFieldConfig)}
             unknown = sorted(set(kwargs) - known)
-            raise ValueError(f'NeuSField: unknown option(s) {unknown}; expected some of {sorted(known)}') from None
+            raise ReneusError(f'NeuSField: unknown option(s) {unknown}; expected some of {sorted(known)}') from None
         self.cfg = cfg
         self.n_features = cfg.n_features
         self.fd_step = float(cfg.fd_step)

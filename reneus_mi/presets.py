@@ -1,0 +1,56 @@
+"""Named configurations: the one registry that the CLIs, the scene writer, the
+benchmarks, the tests and the notebooks take their settings from.
+
+======= ==============================================================
+preset  what it is for
+======= ==============================================================
+paper   NeuS's field (256 x 8), 64 + 64 samples: the paper, for a GPU
+cpu     a NeuS field sized for a CPU (64 x 4), 32 + 32 samples
+demo    the embedded demo: a tiny NeuS field (32 x 4), 32 + 16 samples,
+        300 steps of 256 rays (minutes on a 2-core CPU)
+tiny    tests and notebook smoke runs: width 16, 8 + 8 samples, 64 rays
+        per step (seconds per run; not for results)
+======= ==============================================================
+
+``preset(name)`` returns a fresh copy; change it with
+:func:`reneus_mi.config.replace` (``replace(cfg, **{'train.iterations': 100})``).
+"""
+from __future__ import annotations
+
+import copy
+
+from reneus_mi.config import ModelConfig, ReconstructionConfig, RenderConfig, SamplerConfig, TrainConfig
+from reneus_mi.errors import ReneusError
+from reneus_mi.fields import NeuSFieldConfig
+
+#: NeuS's field at CPU size (the demo's and the cpu preset's architecture differ in width only).
+_SMALL_NEUS = dict(layers=4, color_layers=2, multires=4, multires_view=2, init_radius=0.3)
+
+PRESETS: dict[str, ReconstructionConfig] = {
+    'paper': ReconstructionConfig(),
+    'cpu': ReconstructionConfig(
+        model=ModelConfig(field=NeuSFieldConfig(hidden=64, n_features=16, color_hidden=64, **_SMALL_NEUS),
+                          sampler=SamplerConfig(n_coarse=32, n_fine=32, n_upsample_steps=2),
+                          render=RenderConfig()),
+        train=TrainConfig(batch_rays=512, learning_rate=1e-3)),
+    'demo': ReconstructionConfig(
+        model=ModelConfig(field=NeuSFieldConfig(hidden=32, n_features=8, color_hidden=32, **_SMALL_NEUS),
+                          sampler=SamplerConfig(n_coarse=32, n_fine=16, n_upsample_steps=2),
+                          render=RenderConfig()),
+        train=TrainConfig(iterations=300, batch_rays=256, learning_rate=2e-3, warm_up=50,
+                          validate_every=100, mesh_resolution=128)),
+    'tiny': ReconstructionConfig(
+        model=ModelConfig(field=NeuSFieldConfig(hidden=16, layers=2, n_features=8, color_hidden=16,
+                                                color_layers=1, multires=2, multires_view=1, init_radius=0.3),
+                          sampler=SamplerConfig(n_coarse=8, n_fine=8, n_upsample_steps=2),
+                          render=RenderConfig()),
+        train=TrainConfig(iterations=6, batch_rays=64, warm_up=2, validate_every=0, checkpoint_every=0,
+                          mesh_resolution=16)),
+}
+
+
+def preset(name: str) -> ReconstructionConfig:
+    """A fresh copy of the preset ``name``."""
+    if name not in PRESETS:
+        raise ReneusError(f"preset={name!r}; expected one of {', '.join(PRESETS)}")
+    return copy.deepcopy(PRESETS[name])

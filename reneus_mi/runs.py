@@ -1,0 +1,126 @@
+"""Runs: one reconstruction in one folder, and many of them.
+
+A :class:`RunSpec` is everything a run is made of: the scene (container,
+light), the dataset and the whole :class:`~reneus_mi.config.ReconstructionConfig`.
+:func:`run` trains one in its folder and writes ``config.json`` (the spec,
+which rebuilds the run: :func:`read_spec`) and ``result.json``;
+:func:`run_many` goes through a collection, skipping finished runs and
+resuming killed ones, so that a batch of specimens (or a benchmark table) can
+be interrupted and started again at no cost.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+
+from reneus_mi.config import ReconstructionConfig, from_dict, to_dict
+from reneus_mi.errors import ReneusError
+from reneus_mi.io import atomic_write_text
+
+CONFIG_FILE, RESULT_FILE, CHECKPOINT_FILE = 'config.json', 'result.json', 'checkpoint.npz'
+
+
+@dataclass
+class RunSpec:
+    scene: str
+    """The scene XML: container, ambient light and the reneus integrator."""
+    data: str
+    """The dataset folder (photographs, cameras, masks, container)."""
+    config: ReconstructionConfig
+    """The model rendered (overrides the scene's integrator settings) and its training."""
+    preset: str = ''
+    """The preset the configuration started from, for the record."""
+    mesh_bounds: tuple | None = None
+    """World box (lo, hi) to mesh in, instead of the container's (e.g. box-free data)."""
+
+    def to_dict(self) -> dict:
+        return {'scene': os.path.abspath(self.scene), 'data': os.path.abspath(self.data),
+                'preset': self.preset, 'mesh_bounds': self.mesh_bounds, **to_dict(self.config)}
+
+    @staticmethod
+    def from_dict(d: dict, where: str) -> 'RunSpec':
+        d = dict(d)
+        try:
+            scene, data = d.pop('scene'), d.pop('data')
+        except KeyError as e:
+            raise ReneusError(f'{where}: no {e.args[0]!r} entry; expected scene, data, model, train') from None
+        preset, bounds = d.pop('preset', ''), d.pop('mesh_bounds', None)
+        config = from_dict(ReconstructionConfig, d, where)
+        return RunSpec(scene, data, config, preset, None if bounds is None else tuple(map(tuple, bounds)))
+
+
+def read_spec(out: str) -> RunSpec:
+    """The spec recorded in a run folder's ``config.json``."""
+    path = os.path.join(out, CONFIG_FILE)
+    try:
+        with open(path) as f:
+            values = json.load(f)
+    except FileNotFoundError:
+        raise ReneusError(f'{out}: nothing to resume (no {CONFIG_FILE})') from None
+    except (OSError, ValueError) as e:
+        raise ReneusError(f'{path}: unreadable ({e})') from None
+    return RunSpec.from_dict(values, path)
+
+
+def write_spec(out: str, spec: RunSpec) -> None:
+    atomic_write_text(os.path.join(out, CONFIG_FILE), json.dumps(spec.to_dict(), indent=2))
+
+
+def make_trainer(spec: RunSpec, out: str):
+    """The scene, dataset and trainer of ``spec``; the integrator renders ``spec.config.model``."""
+    import dataclasses
+
+    import reneus_mi  # noqa: F401  (variant, plugins)
+    from reneus_mi.data import load_dataset
+    from reneus_mi.render import load_scene
+    from reneus_mi.trainer import Trainer
+    scene = load_scene(spec.scene)
+    integrator = scene.integrator()
+    if not hasattr(integrator, 'render_rays'):
+        raise ReneusError(f'{spec.scene}: the integrator is {type(integrator).__name__}; '
+                          'expected <integrator type="reneus">')
+    integrator.configure(spec.config.model)
+    dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus')
+    frame = integrator.frame_of(scene)
+    if spec.mesh_bounds is not None:
+        frame = dataclasses.replace(frame, bounds=spec.mesh_bounds)
+    return Trainer(scene, dataset, spec.config.train, out, frame=frame)
+
+
+def run(spec: RunSpec, out: str, *, resume: bool = False, progress: bool = True) -> dict:
+    """Train ``spec`` in folder ``out`` (continuing its checkpoint with ``resume``); return the result."""
+    from reneus_mi.trainer import TrainingError
+    trainer = make_trainer(spec, out)
+    os.makedirs(out, exist_ok=True)
+    if resume:
+        trainer.resume()
+    write_spec(out, spec)
+    try:
+        result = trainer.run(progress=progress)
+    except TrainingError as e:
+        result = {'failure': str(e), 'iterations': trainer.iteration}
+    atomic_write_text(os.path.join(out, RESULT_FILE), json.dumps(result, indent=2))
+    return result
+
+
+def run_many(specs: dict[str, RunSpec], root: str, *, progress: bool = False) -> dict[str, dict]:
+    """Run each spec in ``root/<name>``: a finished run is read back, a killed one resumed.
+
+    A folder whose recorded spec differs from the one asked for is an error
+    (choose another root), never silently overwritten.
+    """
+    results = {}
+    for name, spec in specs.items():
+        out = os.path.join(root, name)
+        done = os.path.join(out, RESULT_FILE)
+        started = os.path.isfile(os.path.join(out, CONFIG_FILE))
+        if started and read_spec(out).to_dict() != spec.to_dict():
+            raise ReneusError(f'{out}: holds a run with other settings; choose another folder')
+        if os.path.isfile(done):
+            with open(done) as f:
+                results[name] = json.load(f)
+            continue
+        results[name] = run(spec, out, resume=os.path.isfile(os.path.join(out, CHECKPOINT_FILE)),
+                            progress=progress)
+    return results
