@@ -25,7 +25,7 @@ ablation, where fake walls on the glass count). It writes
 ``DOC/comparison.png`` (every mesh rendered with Mitsuba from one viewpoint).
 
 Runs live in ``OUT/<object>/<method>/`` (the trainer's folder: checkpoint,
-log, ``mesh.ply`` raw, plus ``mesh_largest.ply`` and ``result.json``). It is
+log, ``mesh.ply`` raw, plus ``mesh_largest.ply`` and ``evaluation.json``). It is
 resumable: a method whose ``mesh.ply`` exists is not trained again, and one
 killed mid-way continues from its checkpoint.
 
@@ -36,7 +36,6 @@ NeuS-sized networks, 64+64 samples, 1024 rays, 200k iterations: a GPU job).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import json
 import os
@@ -48,13 +47,13 @@ import numpy as np
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..'))
 
-#: (key, label, subset, integrator settings, trans_weight)
+#: (key, label, subset, model settings, trans_weight)
 METHODS = (
-    ('neus_nobox', 'NeuS (w/o box)', 'nobox', {'mode': 'neus'}, 0.0),
-    ('neus', 'NeuS', 'box', {'mode': 'neus'}, 0.0),
-    ('neus_plus', 'NeuS+', 'box', {'mode': 'neus_plus'}, 0.0),
-    ('reneus_notrans', 'ReNeuS w/o L_trans', 'box', {'mode': 'reneus', 'max_depth': 2}, 0.0),
-    ('reneus', 'ReNeuS', 'box', {'mode': 'reneus', 'max_depth': 2}, 0.1),
+    ('neus_nobox', 'NeuS (w/o box)', 'nobox', {'render.mode': 'neus'}, 0.0),
+    ('neus', 'NeuS', 'box', {'render.mode': 'neus'}, 0.0),
+    ('neus_plus', 'NeuS+', 'box', {'render.mode': 'neus_plus'}, 0.0),
+    ('reneus_notrans', 'ReNeuS w/o L_trans', 'box', {'render.mode': 'reneus', 'render.max_depth': 2}, 0.0),
+    ('reneus', 'ReNeuS', 'box', {'render.mode': 'reneus', 'render.max_depth': 2}, 0.1),
 )
 METHOD_KEYS = tuple(m[0] for m in METHODS)
 OBJECTS = ('insect', 'statuette', 'vase')
@@ -65,16 +64,14 @@ PAPER = {'insect': (5.89, 21.71, 1.10), 'statuette': (0.79, 25.44, 2.26), 'vase'
 
 
 def configs() -> dict:
-    """Dataset, integrator and training settings of each configuration."""
-    from reneus_mi.optimize import DEMO_DATA, DEMO_INTEGRATOR, DEMO_TRAIN
-    small_train = dict(DEMO_TRAIN, iterations=200, validate_every=0, checkpoint_every=50,
-                       mesh_resolution=128, postprocess='none')
+    """Preset, dataset and training changes of each configuration."""
+    from reneus_mi.optimize import DEMO_DATA, DEMO_PRESET
     return {
-        'small': {'data': dict(DEMO_DATA), 'integrator': dict(DEMO_INTEGRATOR), 'train': small_train},
-        'full': {'data': {'views': 60, 'res': 800, 'spp': 256},
-                 # The integrator's and field's defaults are the paper's / NeuS's:
-                 # 256x8 SDF MLP, 256x4 colour MLP, 64 coarse + 64 fine samples.
-                 'integrator': {},
+        'small': {'preset': DEMO_PRESET, 'data': dict(DEMO_DATA),
+                  'train': {'iterations': 200, 'validate_every': 0, 'checkpoint_every': 50,
+                            'mesh_resolution': 128, 'postprocess': 'none'}},
+        # The paper preset: NeuS's 256x8 SDF MLP, 256x4 colour MLP, 64 coarse + 64 fine samples.
+        'full': {'preset': 'paper', 'data': {'views': 60, 'res': 800, 'spp': 256},
                  'train': {'iterations': 200000, 'batch_rays': 1024, 'learning_rate': 5e-4,
                            'warm_up': 5000, 'anneal_end': 50000, 'validate_every': 10000,
                            'checkpoint_every': 1000, 'mesh_resolution': 512, 'postprocess': 'none'}},
@@ -84,19 +81,27 @@ def configs() -> dict:
 def resolve(config: str, iterations: int | None = None, **overrides) -> dict:
     """The settings of ``config`` with ``--iterations`` and test-size overrides applied.
 
-    ``overrides`` may hold ``data`` / ``integrator`` / ``train`` dicts merged
-    into the configuration's.
+    ``overrides`` may hold ``data`` / ``train`` dicts merged into the configuration's.
     """
     all_cfgs = configs()
     if config not in all_cfgs:
         raise ValueError(f'config {config!r}: expected one of {", ".join(all_cfgs)}')
-    cfg = {k: dict(v) for k, v in all_cfgs[config].items()}
+    cfg = {k: (dict(v) if isinstance(v, dict) else v) for k, v in all_cfgs[config].items()}
     for part, values in overrides.items():
         cfg[part].update(values or {})
     if iterations is not None:
         cfg['train']['iterations'] = int(iterations)
     cfg['name'] = config
     return cfg
+
+
+def reconstruction_config(cfg: dict, model: dict | None = None, **train):
+    """The ReconstructionConfig of ``cfg``'s preset with its training changes, ``model`` and ``train``."""
+    from reneus_mi.config import replace
+    from reneus_mi.presets import preset
+    changes = {f'train.{k}': v for k, v in {**cfg['train'], **train}.items()}
+    changes.update({f'model.{k}': v for k, v in (model or {}).items()})
+    return replace(preset(cfg['preset']), **changes)
 
 
 # ------------------------------------------------------------------ running
@@ -119,109 +124,64 @@ def dataset(obj: str, out: str, cfg: dict) -> str:
     return folder
 
 
-def run_method(obj: str, key: str, out: str, cfg: dict, *, integrator_extra: dict | None = None,
+def run_method(obj: str, key: str, out: str, cfg: dict, *, model_extra: dict | None = None,
                run_name: str | None = None, progress: bool = False) -> dict:
-    """Fit one method on one object (or reuse its mesh) and evaluate it; returns result.json's dict."""
+    """Fit one method on one object (or reuse its run) and evaluate it; returns result.json's dict."""
     import reneus_mi  # noqa: F401  (variant, plugins)
-    import drjit as dr
-    from reneus_mi.config import TrainConfig
+    import trimesh
+    from reneus_mi import runs
+    from reneus_mi.config import to_dict
     from reneus_mi.data import load_dataset
     from reneus_mi.data.container import load_container
     from reneus_mi.evaluate import chamfer, load_mesh
     from reneus_mi.extract import write_mesh
+    from reneus_mi.io import atomic_write_text
     from reneus_mi.mesh import postprocess
-    from reneus_mi.optimize import load
     from reneus_mi.scene import write_scene
-    from reneus_mi.trainer import TrainingError
 
     _, label, subset, settings, trans_weight = METHODS[METHOD_KEYS.index(key)]
     out = os.path.abspath(out)
-    settings = dict(settings, **(integrator_extra or {}))
     data = dataset(obj, out, cfg)
-    run_dir = os.path.join(out, obj, run_name or key)
-    os.makedirs(run_dir, exist_ok=True)
-    mesh_path = os.path.join(run_dir, 'mesh.ply')
-    result_path = os.path.join(run_dir, 'result.json')
-    train_cfg = TrainConfig(**dict(cfg['train'], trans_weight=trans_weight))
-    record = {'object': obj, 'method': key, 'label': label, 'subset': subset,
-              'integrator': {**cfg['integrator'], **settings}, 'train': dataclasses.asdict(train_cfg),
-              'data': cfg['data']}
-    if os.path.isfile(result_path):
-        with open(result_path) as f:
-            old = json.load(f)
-        if old.get('train') != record['train'] or old.get('integrator') != record['integrator']:
-            raise ValueError(f'{run_dir}: was run with other settings; choose another --out')
-        # A finished run, or a failed one (delete its folder to try again).
-        if os.path.isfile(mesh_path) or old.get('failure'):
-            return old
-
-    seconds, failure = None, None
-    if not os.path.isfile(mesh_path):
-        subset_dir = os.path.join(data, subset)
-        ds = load_dataset(subset_dir, need_container=subset == 'box')
-        scene_path = os.path.join(run_dir, 'scene.xml')
-        write_scene(ds, scene_path, **cfg['integrator'], **settings)
-        scene, ds = load(scene_path, subset_dir)
-        trainer = _trainer_class()(scene, ds, train_cfg, run_dir)
-        trainer.box_path = os.path.join(data, 'box.ply')
-        if os.path.isfile(trainer.checkpoint_path):
-            trainer.resume()
-        print(f'[{obj}] {label}: training {train_cfg.iterations} iterations '
-              f'(from {trainer.iteration}) in {run_dir}', flush=True)
-        start = time.perf_counter()
-        try:
-            trainer.run(progress=progress)
-        except (TrainingError, ValueError) as e:  # ValueError: marching cubes found no surface
-            failure = str(e).splitlines()[0]
-        dr.sync_thread()
-        seconds = time.perf_counter() - start
-
-    record['seconds'] = seconds
-    record['s_per_it'] = _median_step_seconds(os.path.join(run_dir, 'log.jsonl'), train_cfg.batch_rays)
-    record['failure'] = failure
-    gt = load_mesh(os.path.join(data, 'gt.ply'))
+    config = reconstruction_config(cfg, {**settings, **(model_extra or {})}, trans_weight=trans_weight)
+    subset_dir = os.path.join(data, subset)
+    scene_path = os.path.join(out, obj, f'scene_{subset}.xml')
+    if not os.path.isfile(scene_path):
+        write_scene(load_dataset(subset_dir, need_container=False), scene_path, preset=cfg['preset'])
+    # Every method is meshed in the glass box's bounds, box-free data too, so that the
+    # Chamfer distances compare.
     box = load_container(os.path.join(data, 'box.ply'))
-    record['chamfer'] = record['chamfer_raw_in_box'] = float('nan')
-    if failure is None:
+    spec = runs.RunSpec(scene_path, subset_dir, config, cfg['preset'],
+                        mesh_bounds=tuple(map(tuple, box.bounds.tolist())))
+    name = run_name or key
+    run_dir = os.path.join(out, obj, name)
+    evaluation = os.path.join(run_dir, 'evaluation.json')
+    if os.path.isfile(evaluation) and runs.read_spec(run_dir).to_dict() == spec.to_dict():
+        with open(evaluation) as f:
+            return json.load(f)
+    print(f'[{obj}] {label}: training {config.train.iterations} iterations in {run_dir}', flush=True)
+    start = time.perf_counter()
+    result = runs.run_many({name: spec}, os.path.join(out, obj), progress=progress)[name]
+    record = {'object': obj, 'method': key, 'label': label, 'subset': subset,
+              'integrator': to_dict(config.model.render), 'train': to_dict(config.train),
+              'data': cfg['data'], 'seconds': time.perf_counter() - start,
+              's_per_it': _median_step_seconds(os.path.join(run_dir, 'log.jsonl'), config.train.batch_rays),
+              'failure': result.get('failure'), 'chamfer': float('nan'), 'chamfer_raw_in_box': float('nan')}
+    if record['failure'] is None:
         try:
-            raw = load_mesh(mesh_path)
+            raw = load_mesh(result['mesh'])
             largest = postprocess(raw, 'largest')
             write_mesh(largest, os.path.join(run_dir, 'mesh_largest.ply'))
+            gt = load_mesh(os.path.join(data, 'gt.ply'))
             record['chamfer'] = chamfer(largest, gt)['chamfer']
             record['chamfer_raw_in_box'] = chamfer(raw, gt, container=box)['chamfer']
             record['faces'] = int(len(raw.faces))
         except ValueError as e:  # empty mesh, nothing inside the box
             record['failure'] = str(e).splitlines()[0]
-    with open(result_path, 'w') as f:
-        json.dump(record, f, indent=2)
+    atomic_write_text(evaluation, json.dumps(record, indent=2))
     print(f"[{obj}] {label}: Chamfer x100 {record['chamfer']:.3f} (largest), "
           f"{record['chamfer_raw_in_box']:.3f} (raw, in box); "
           f"{record['s_per_it'] or float('nan'):.2f} s/it", flush=True)
     return record
-
-
-def _trainer_class():
-    """The trainer, meshing box-free runs inside the glass box's bounds.
-
-    Without a container the trainer meshes the field's whole bounding sphere;
-    every method of the table is meshed in the same region, the box's
-    bounding box (``box_path``), so that the Chamfer distances compare.
-    """
-    from reneus_mi.trainer import Trainer
-
-    class BenchTrainer(Trainer):
-        box_path = None
-
-        @property
-        def frame(self) -> dict:
-            frame = Trainer.frame.fget(self)
-            if self.ds.container is None and self.box_path:
-                import trimesh
-                lo, hi = trimesh.load(self.box_path, force='mesh').bounds
-                frame = dict(frame, lo=[float(v) for v in lo], hi=[float(v) for v in hi])
-            return frame
-
-    return BenchTrainer
 
 
 def _median_step_seconds(log_path: str, batch: int) -> float | None:
@@ -303,12 +263,12 @@ def _num(x, fmt='.2f') -> str:
 
 
 def table(results: dict, objects: list[str], cfg: dict, *, elapsed: float | None = None) -> str:
-    from reneus_mi.config import TrainConfig
-    d, t, integ = cfg['data'], dataclasses.asdict(TrainConfig(**cfg['train'])), cfg['integrator']
-    field = ', '.join(f'{k[6:]}={v}' for k, v in integ.items() if k.startswith('field_')) or \
-        'the field defaults (NeuS: SDF 256x8, colour 256x4)'
-    samples = ', '.join(f'{k}={integ[k]}' for k in ('n_coarse', 'n_fine', 'n_upsample_steps') if k in integ) \
-        or 'the integrator defaults (64 coarse + 64 fine)'
+    from reneus_mi.config import to_dict
+    config = reconstruction_config(cfg)
+    d, t = cfg['data'], to_dict(config.train)
+    field_cfg = to_dict(config.model.field)
+    field = f"{field_cfg.pop('kind')} (" + ', '.join(f'{k}={v}' for k, v in field_cfg.items()) + ')'
+    samples = ', '.join(f'{k}={v}' for k, v in to_dict(config.model.sampler).items())
     lines = [
         f"# Synthetic comparison (`--config {cfg['name']}`)", '',
         f"Generated by `python bench/compare.py --config {cfg['name']} --objects {' '.join(objects)} "
@@ -317,7 +277,7 @@ def table(results: dict, objects: list[str], cfg: dict, *, elapsed: float | None
         'glass box IOR 1.45, ambient 0.8), both subsets rendered with the same cameras.',
         f"- Training: {t['iterations']} iterations of {t['batch_rays']} rays, lr {t['learning_rate']} "
         f"(warm-up {t['warm_up']}, cosine decay), λ2 (Eikonal) {t['eikonal_weight']}, seed {t['seed']}.",
-        f'- Field: {field}; samples per segment: {samples}; ReNeuS D_re = 2.',
+        f"- Preset `{cfg['preset']}`. Field: {field}; samples per segment: {samples}; ReNeuS D_re = 2.",
         f"- Mesh: marching cubes at {t['mesh_resolution']}^3 in the box's bounding box.",
         f'- Device: {device()}.',
         '', 'Chamfer-L1 x100 (lower is better). **CD** = after the paper\'s post-processing (largest '

@@ -5,8 +5,8 @@
 Renders scenes/glass_sphere.xml (glass block IOR 1.45, D_re = 2, 64 + 64
 samples per inside segment, 1 spp) and prints camera rays per second (after a
 warm-up render that compiles the kernels) and the process's peak resident
-memory. ``--field neus`` swaps the analytic sphere for an untrained NeuS field
-of the given size (the paper's is 256 x 8).
+memory. ``--preset NAME`` swaps the analytic sphere for the untrained field and the
+sampling of a preset (reneus_mi.presets: demo, cpu, paper, ...).
 """
 import argparse
 import os
@@ -18,7 +18,7 @@ import mitsuba as mi
 import numpy as np
 
 import reneus_mi  # noqa: F401  (variant, plugins)
-from reneus_mi.fields.neus import NeuSField
+from reneus_mi.presets import PRESETS, preset
 
 SCENE = os.path.join(os.path.dirname(__file__), '..', 'scenes', 'glass_sphere.xml')
 
@@ -26,9 +26,8 @@ SCENE = os.path.join(os.path.dirname(__file__), '..', 'scenes', 'glass_sphere.xm
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--res', type=int, default=256)
-    p.add_argument('--field', choices=['sphere', 'neus'], default='sphere')
-    p.add_argument('--hidden', type=int, default=64, help='NeuS width (--field neus)')
-    p.add_argument('--layers', type=int, default=4, help='NeuS depth (--field neus)')
+    p.add_argument('--preset', choices=sorted(PRESETS), help="the preset's field and sampling "
+                   "(default: the scene's analytic sphere)")
     p.add_argument('--repeat', type=int, default=3)
     args = p.parse_args()
 
@@ -38,9 +37,8 @@ def main():
     params['film.size'] = [args.res, args.res]
     params.update()
     integrator = scene.integrator()
-    if args.field == 'neus':
-        integrator.field = NeuSField(hidden=args.hidden, layers=args.layers, n_features=64,
-                                     color_hidden=64, color_layers=2, init_radius=0.3)
+    if args.preset:
+        integrator.configure(preset(args.preset).model)
     start = time.perf_counter()
     mi.render(scene, spp=1)
     dr.sync_thread()
@@ -55,8 +53,7 @@ def main():
     t = float(np.median(times))
     rays = args.res * args.res
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f'command: python bench/render.py --res {args.res} --field {args.field}'
-          + (f' --hidden {args.hidden} --layers {args.layers}' if args.field == 'neus' else ''))
+    print(f'command: python bench/render.py --res {args.res}' + (f' --preset {args.preset}' if args.preset else ''))
     print(f'variant {mi.variant()}, threads {dr.thread_count()}, {integrator.to_string()}')
     print(f'first render (compiles) {warm:.2f} s; render {t:.3f} s (median of {args.repeat}) '
           f'= {rays / t / 1e3:.1f} k camera rays/s; peak RSS {peak_mb:.0f} MB')

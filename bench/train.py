@@ -1,8 +1,8 @@
 """Training speed and peak memory of one reconstruction step (Trainer.step).
 
-    python bench/train.py [--settings demo paper] [--batch 1024 256] [--steps 5]
+    python bench/train.py [--presets demo paper] [--batch 1024 256] [--steps 5]
 
-For each field/sampling setting and batch size, a fresh process builds the
+For each preset (reneus_mi.presets) and batch size, a fresh process builds the
 scene of the embedded demo dataset (the statuette in its glass block, 16 views
 at 32x32, rendered once into ``--data``), runs ``--warmup`` steps (they
 compile the kernels; timed apart) and then ``--steps`` timed steps of
@@ -10,10 +10,10 @@ compile the kernels; timed apart) and then ``--steps`` timed steps of
 each ends with ``dr.sync_thread``). It prints iterations and camera rays per
 second and the child's peak resident memory (``ru_maxrss``).
 
-Settings: ``demo`` is ``reneus_mi.optimize.DEMO_INTEGRATOR`` (NeuS 32x4,
-32 + 16 samples per inside segment); ``paper`` is the paper's (NeuS 256x8
-with 256 features, radiance 256x4, 64 + 64 samples in 4 up-sampling rounds).
-Both render with D_re = 2. ``--timeout`` bounds each child: a setting that
+Presets: ``demo`` (NeuS 32x4, 32 + 16 samples per inside segment), ``cpu``
+(NeuS 64x4, 32 + 32), ``paper`` (NeuS 256x8 with 256 features, radiance
+256x4, 64 + 64 samples in 4 up-sampling rounds). All render with D_re = 2.
+``--timeout`` bounds each child: a setting that
 does not finish its warm-up and steps in time is reported as such.
 """
 from __future__ import annotations
@@ -27,35 +27,27 @@ import sys
 import tempfile
 import time
 
-SETTINGS = {
-    'demo': None,  # reneus_mi.optimize.DEMO_INTEGRATOR, read in the child
-    'paper': {'field_hidden': 256, 'field_layers': 8, 'field_n_features': 256,
-              'field_color_hidden': 256, 'field_color_layers': 4, 'field_multires': 6,
-              'field_multires_view': 4, 'field_init_radius': 0.5,
-              'n_coarse': 64, 'n_fine': 64, 'n_upsample_steps': 4},
-}
-
-
 def child(args) -> None:
     """One setting, one batch size: print one JSON line."""
     import drjit as dr
     import mitsuba as mi
 
     import reneus_mi  # noqa: F401
-    from reneus_mi.config import TrainConfig
+    from reneus_mi import runs
+    from reneus_mi.config import replace
     from reneus_mi.data import load_dataset
-    from reneus_mi.optimize import DEMO_INTEGRATOR, load, make_demo
+    from reneus_mi.optimize import make_demo, spec_of_scene
     from reneus_mi.scene import write_scene
-    from reneus_mi.trainer import Trainer
 
-    settings = DEMO_INTEGRATOR if args.one == 'demo' else SETTINGS[args.one]
     scene_path = make_demo(args.data)
     xml = os.path.join(args.data, f'scene_bench_{args.one}.xml')
-    write_scene(load_dataset(os.path.join(os.path.dirname(scene_path), 'box')), xml, **settings)
-    scene, ds = load(xml, None)
+    write_scene(load_dataset(os.path.join(os.path.dirname(scene_path), 'box')), xml, preset=args.one)
+    spec = spec_of_scene(xml, None)
+    spec.config = replace(spec.config, **{'train.batch_rays': args.one_batch, 'train.iterations': 10 ** 6,
+                                          'train.validate_every': 0, 'train.checkpoint_every': 0})
     with tempfile.TemporaryDirectory() as out:
-        trainer = Trainer(scene, ds, TrainConfig(batch_rays=args.one_batch, iterations=10 ** 6,
-                                                 validate_every=0, checkpoint_every=0), out)
+        trainer = runs.make_trainer(spec, out)
+        scene = trainer.scene
         warm = []
         for _ in range(args.warmup):
             start = time.perf_counter()
@@ -78,7 +70,8 @@ def child(args) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument('--settings', nargs='+', choices=sorted(SETTINGS), default=['demo', 'paper'])
+    from reneus_mi.presets import PRESETS
+    p.add_argument('--presets', nargs='+', choices=sorted(PRESETS), default=['demo', 'paper'])
     p.add_argument('--batch', nargs='+', type=int, default=[1024, 256], help='camera rays per step')
     p.add_argument('--steps', type=int, default=5, help='timed steps')
     p.add_argument('--warmup', type=int, default=2, help='untimed first steps (compilation)')
@@ -95,7 +88,7 @@ def main(argv=None) -> int:
     command = 'python bench/train.py ' + ' '.join(sys.argv[1:] if argv is None else argv)
     print(f'command: {command}'.rstrip())
     env = {**os.environ, 'PYTHONUNBUFFERED': '1'}
-    for name in args.settings:
+    for name in args.presets:
         for batch in args.batch:
             cmd = [sys.executable, os.path.abspath(__file__), '--one', name, '--one-batch', str(batch),
                    '--steps', str(args.steps), '--warmup', str(args.warmup), '--data', args.data]
@@ -112,7 +105,7 @@ def main(argv=None) -> int:
                       f'{proc.stderr.strip().splitlines()[-1:]}')
                 continue
             r = json.loads(lines[-1])
-            if name == args.settings[0] and batch == args.batch[0]:
+            if name == args.presets[0] and batch == args.batch[0]:
                 print(f"variant {r['variant']}, {r['threads']} threads, {os.cpu_count()} CPUs, "
                       f"load average {os.getloadavg()[0]:.1f} (other processes share the CPU)")
             warm = ', '.join(f'{w:.1f}' for w in r['warmup_s'])

@@ -34,6 +34,10 @@ class ReneusError(ValueError):
     """A problem with the user's input or settings, stated in one line; CLIs print it as is."""
 
 
+class NoSurfaceError(ReneusError):
+    """The field has no zero level set where a mesh was asked for."""
+
+
 def _owner(obj) -> str:
     return getattr(obj, 'kind', None) or type(obj).__name__
 

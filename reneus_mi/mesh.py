@@ -19,6 +19,7 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
+from reneus_mi.errors import NoSurfaceError
 from reneus_mi.fields.base import Field
 
 #: Post-processing rules understood by :func:`postprocess`.
@@ -89,11 +90,11 @@ def extract_mesh(field: Field, lo, hi, resolution=256, *, to_world=None) -> trim
     lo, hi = _triple(lo, 'lo'), _triple(hi, 'hi')
     grid = sdf_grid(field, lo, hi, resolution)
     if not np.all(np.isfinite(grid)):
-        raise ValueError(f'{type(field).__name__}: the SDF is not finite at '
+        raise NoSurfaceError(f'{type(field).__name__}: the SDF is not finite at '
                          f'{int(np.sum(~np.isfinite(grid)))} grid points')
     g_min, g_max = float(grid.min()), float(grid.max())
     if not g_min < 0.0 < g_max:
-        raise ValueError(f'{type(field).__name__} has no zero crossing in the box lo={lo.tolist()} '
+        raise NoSurfaceError(f'{type(field).__name__} has no zero crossing in the box lo={lo.tolist()} '
                          f'hi={hi.tolist()}: the SDF ranges over [{g_min:.4g}, {g_max:.4g}]')
     step = (hi - lo) / (np.asarray(grid.shape) - 1)
     # skimage's 'descent' winding puts the normals on the side where the

@@ -28,12 +28,13 @@ from dataclasses import asdict, dataclass
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+import trimesh
 from drjit.opt import GradScaler
 
 from reneus_mi import checkpoint, losses
 from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
-from reneus_mi.errors import ReneusError
+from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.extract import field_mesh, write_mesh
 from reneus_mi.fields import load_field
 from reneus_mi.frame import FieldFrame
@@ -212,7 +213,11 @@ class Trainer:
         os.makedirs(os.path.join(self.out, 'images'), exist_ok=True)
         write_image(both, os.path.join(self.out, 'images', f'{self.iteration:06d}.png'))
         write_image(normals * 0.5 + 0.5, os.path.join(self.out, 'images', f'{self.iteration:06d}_normal.png'))
-        self.write_mesh(os.path.join(self.out, 'meshes', f'{self.iteration:06d}.ply'), resolution=64)
+        try:
+            self.write_mesh(os.path.join(self.out, 'meshes', f'{self.iteration:06d}.ply'), resolution=64)
+        except NoSurfaceError as e:
+            from tqdm import tqdm
+            tqdm.write(f'step {self.iteration}: no validation mesh ({e}); training goes on')
 
     def write_mesh(self, path: str, resolution: int | None = None):
         mesh = field_mesh(self.field, self.frame, resolution or self.cfg.mesh_resolution,
@@ -255,10 +260,17 @@ class Trainer:
         bar.close()
         self.save_checkpoint()
         mesh_path = os.path.join(self.out, 'mesh.ply')
-        self.write_mesh(mesh_path)
-        return {'iterations': self.iteration, 'seconds': time.perf_counter() - start,
-                'psnr': float(np.mean(psnrs)) if psnrs else float('nan'), 'mesh': mesh_path,
-                'stopped_by_budget': self.iteration < cfg.iterations}
+        result = {'iterations': self.iteration, 'seconds': time.perf_counter() - start,
+                  'psnr': float(np.mean(psnrs)) if psnrs else float('nan'), 'mesh': mesh_path,
+                  'stopped_by_budget': self.iteration < cfg.iterations}
+        try:
+            self.write_mesh(mesh_path)
+        except NoSurfaceError as e:
+            # A run never ends without its mesh file: an empty one, and the reason.
+            write_mesh(trimesh.Trimesh(), mesh_path)
+            result['failure'] = (f'{e}; {mesh_path} is empty; the run can go on: --resume with more '
+                                 '--iterations (or a lower --trans-weight)')
+        return result
 
 
 @contextlib.contextmanager

@@ -68,7 +68,7 @@ def test_table_has_every_method_with_finite_numbers(tiny):
     assert not any(_failed(results[('statuette', k)]) for k in ('neus', 'neus_nobox', 'neus_plus'))
     for key, _, subset, settings, lam in compare.METHODS:
         r = results[('statuette', key)]
-        assert r['subset'] == subset and r['integrator']['mode'] == settings['mode']
+        assert r['subset'] == subset and r['integrator']['mode'] == settings['render.mode']
         assert r['train']['trans_weight'] == lam and r['train']['iterations'] == 10
         if _failed(r):
             continue
@@ -124,5 +124,5 @@ def test_ablation_depth_reuses_depth_two(tiny):
     for r in rows:
         assert all(c.strip() in ('failed', '—') or math.isfinite(float(c))
                    for c in r.strip('|').split('|')[1:5]), r
-    with open(os.path.join(out, 'statuette', 'reneus_d1', 'result.json')) as f:
+    with open(os.path.join(out, 'statuette', 'reneus_d1', 'evaluation.json')) as f:
         assert json.load(f)['integrator']['max_depth'] == 1

@@ -10,13 +10,13 @@ by Chamfer-L1 x100 (the paper's metric and post-processing).
 
 import pytest
 
-from reneus_mi.config import TrainConfig
+from reneus_mi import runs
+from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
 from reneus_mi.evaluate import chamfer, load_mesh
-from reneus_mi.optimize import DEMO_INTEGRATOR, DEMO_TRAIN, load
+from reneus_mi.optimize import spec_of_scene
 from reneus_mi.scene import write_scene
 from reneus_mi.synth import make_dataset
-from reneus_mi.trainer import Trainer
 
 ITERATIONS = 200
 
@@ -31,11 +31,11 @@ def data(tmp_path_factory):
 def reconstruct(folder, mode, iterations):
     ds = load_dataset(str(folder / 'box'))
     xml = str(folder / f'scene_{mode}.xml')
-    write_scene(ds, xml, mode=mode, **DEMO_INTEGRATOR)
-    scene, ds = load(xml, None)
-    cfg = TrainConfig(**{**DEMO_TRAIN, 'iterations': iterations, 'validate_every': 0,
-                         'checkpoint_every': 0, 'mesh_resolution': 96})
-    trainer = Trainer(scene, ds, cfg, str(folder / f'run_{mode}'))
+    write_scene(ds, xml, preset='demo', mode=mode)
+    spec = spec_of_scene(xml, None)
+    spec.config = replace(spec.config, **{'train.iterations': iterations, 'train.validate_every': 0,
+                                          'train.checkpoint_every': 0, 'train.mesh_resolution': 96})
+    trainer = runs.make_trainer(spec, str(folder / f'run_{mode}'))
     gt = load_mesh(ds.gt_mesh)
     initial = chamfer(trainer.write_mesh(str(folder / f'initial_{mode}.ply'), resolution=96), gt)
     result = trainer.run(progress=False)
