@@ -61,6 +61,9 @@ class StepStats:
     learning_rate: float
     inv_s: float
     rays_per_s: float
+    samples: float
+    """Field samples (sections) volume rendered in the step."""
+    seconds: float
 
 
 def field_parameters(scene: mi.Scene) -> mi.SceneParameters:
@@ -149,9 +152,10 @@ class Trainer:
         l_eik = losses.eikonal(result.eikonal, result.n_samples)
         loss = l_color + cfg.trans_weight * l_trans + cfg.eikonal_weight * l_eik
         mse = dr.mean(dr.square(dr.detach(result.color) - target), axis=None)
+        samples = dr.sum(result.n_samples)
         # Scheduled, the loss terms are computed in the launch that evaluates
         # the gradients rather than in a forward pass of their own.
-        dr.schedule(loss, l_color, l_trans, l_eik, mse)
+        dr.schedule(loss, l_color, l_trans, l_eik, mse, samples)
         dr.backward(self.scaler.scale(loss) if self.scaler else loss)
         grads = {key: dr.grad(self.opt[key]) for key in self.opt.keys()}
         # With loss scaling, an overflowing gradient is the scaler's to skip.
@@ -178,7 +182,7 @@ class Trainer:
         return StepStats(loss=value, color=float(l_color[0]), trans=float(l_trans[0]),
                          eikonal=float(l_eik[0]), psnr=float('inf') if m == 0 else -10.0 * np.log10(m),
                          learning_rate=lr, inv_s=float(self.field.inv_s()[0]),
-                         rays_per_s=cfg.batch_rays / elapsed)
+                         rays_per_s=cfg.batch_rays / elapsed, samples=float(samples[0]), seconds=elapsed)
 
     def _check(self, value: float, it: int) -> None:
         if not np.isfinite(value):
