@@ -85,10 +85,9 @@ class AnalyticField(Field):
             known = [f.name for f in dataclasses.fields(self.Config)]
             raise ReneusError(f'{self.Config.kind} field: unknown option(s) '
                               f'{sorted(set(kwargs) - set(known))}; expected some of {known}') from None
-        self.color, self.inv_s_value, self.center = self.cfg.color, self.cfg.inv_s, self.cfg.center
 
     def _local(self, x: mi.Point3f) -> mi.Vector3f:
-        return mi.Vector3f(x - mi.Point3f(*self.center))
+        return mi.Vector3f(x - mi.Point3f(*self.cfg.center))
 
     def _distance(self, p: mi.Vector3f) -> mi.Float:
         raise NotImplementedError
@@ -108,10 +107,10 @@ class AnalyticField(Field):
         return dr.detach(g), grad, []
 
     def radiance(self, x, v, n, feature):
-        return mi.Color3f(*self.color) + 0.0 * x.x
+        return mi.Color3f(*self.cfg.color) + 0.0 * x.x
 
     def inv_s(self):
-        return mi.Float(self.inv_s_value)
+        return mi.Float(self.cfg.inv_s)
 
     def config(self):
         return dataclasses.asdict(self.cfg)
@@ -120,23 +119,15 @@ class AnalyticField(Field):
 class SphereField(AnalyticField):
     Config = SphereFieldConfig
 
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self.radius = self.cfg.radius
-
     def _distance(self, p):
-        return dr.norm(p) - self.radius
+        return dr.norm(p) - self.cfg.radius
 
 
 class BoxField(AnalyticField):
     Config = BoxFieldConfig
 
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self.half_size = self.cfg.half_size
-
     def _distance(self, p):
-        q = dr.abs(p) - mi.Vector3f(*self.half_size)
+        q = dr.abs(p) - mi.Vector3f(*self.cfg.half_size)
         # The clamp keeps the gradient of the norm finite (0, not 0/0) inside.
         outside = dr.sqrt(dr.maximum(dr.squared_norm(dr.maximum(q, 0.0)), 1e-30))
         return outside + dr.minimum(dr.max(q), 0.0)
@@ -147,10 +138,6 @@ class TorusField(AnalyticField):
 
     Config = TorusFieldConfig
 
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self.major, self.minor = self.cfg.major, self.cfg.minor
-
     def _distance(self, p):
-        q = dr.sqrt(p.x * p.x + p.y * p.y) - self.major
-        return dr.sqrt(q * q + p.z * p.z) - self.minor
+        q = dr.sqrt(p.x * p.x + p.y * p.y) - self.cfg.major
+        return dr.sqrt(q * q + p.z * p.z) - self.cfg.minor
