@@ -48,8 +48,9 @@ class StepState:
     """The optimisation step (drives the field's and the sampler's own schedules)."""
     cos_anneal_ratio: float = 1.0
     """NeuS's cosine annealing ratio in [0, 1]."""
-    jitter_seed: int | None = None
-    """Seed of the stratified jitter of every segment's samples (None: stratum midpoints)."""
+    seed: int | None = None
+    """Seed of the step's random numbers: the stratified jitter of every segment's samples and
+    the Russian roulette of low-weight branches (None: stratum midpoints, roulette stream 0)."""
 
 
 class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
@@ -183,8 +184,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         container = self._bind(scene)
         n = dr.width(ray.o)
         jitter = None
-        if self.state.jitter_seed is not None:
-            jitter = mi.PCG32(n, initstate=mi.UInt64(self.state.jitter_seed)).next_float32()
+        if self.state.seed is not None:
+            jitter = mi.PCG32(n, initstate=mi.UInt64(self.state.seed)).next_float32()
         acc = _Accumulator(n)
         rays = _Rays(o=mi.Point3f(ray.o), d=mi.Vector3f(ray.d), β=dr.ones(mi.Float, n),
                      camera=dr.arange(mi.UInt32, n))
@@ -228,7 +229,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                 if render.terminal == 'ambient':
                     acc.add(rays.camera, rays.β * T * _ambient(scene, rays.d), hit)
                 return
-            rays = self._interface(rays, si, hit, T, eta, reflect=not plus)
+            rays = self._interface(rays, si, hit, T, eta, reflect=not plus, depth=depth)
 
     def _trace_neus(self, scene, rays, acc, jitter):
         # Plain NeuS: the field's unit bounding sphere, ambient beyond it.
@@ -262,7 +263,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         dr.scatter(T, vr.transmittance, seg)
         return T
 
-    def _interface(self, rays, si, hit, T, eta, reflect: bool):
+    def _roulette_seed(self, depth: int) -> int:
+        return (((self.state.seed or 0) * 0x9E3779B1) ^ (depth + 1) * 0x85EBCA77) & 0xFFFFFFFFFFFFFFFF
+
+    def _interface(self, rays, si, hit, T, eta, reflect: bool, depth: int = 0):
         """Spawn the next generation: reflected (β·T·R) and refracted (β·T·(1-R)) rays."""
         R, d_r, d_t = interface(rays.d, si.n, eta)
         β = rays.β * T
@@ -276,7 +280,16 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         refracted = j >= n
         lane = dr.select(refracted, j - n, j)
         β_all = dr.select(refracted, dr.gather(mi.Float, β_t, lane), dr.gather(mi.Float, β_r, lane))
-        keep = dr.compress(dr.gather(mi.Bool, hit, lane) & (dr.detach(β_all) > 0.0))
+        alive = dr.gather(mi.Bool, hit, lane) & (dr.detach(β_all) > 0.0)
+        threshold = self.model.render.rr_threshold
+        if threshold > 0.0:
+            # Russian roulette: a branch of weight β < threshold survives with probability
+            # β / threshold and then carries weight threshold; the tree's mean is unchanged.
+            p = dr.minimum(dr.detach(β_all) / threshold, 1.0)
+            u = mi.PCG32(2 * n, initstate=mi.UInt64(self._roulette_seed(depth))).next_float32()
+            alive &= u < p
+            β_all = β_all / dr.select(p > 0.0, p, 1.0)
+        keep = dr.compress(alive)
         if dr.width(keep) == 0:  # Dr.Jit 1.5 crashes on dr.select of empty arrays
             return rays.take(keep)
         lane = dr.gather(mi.UInt32, lane, keep)

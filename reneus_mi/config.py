@@ -65,13 +65,17 @@ class RenderConfig:
     in ambient light) or 'black' (what Mitsuba's path tracer computes with max_depth = D_re + 1)."""
     gamma: float = 2.2
     """Output is C^(1/gamma), the paper's camera response; 1 gives linear radiance."""
+    rr_threshold: float = 0.0
+    """Russian roulette on ray-tree branches whose weight β is below this: such a branch is
+    followed with probability β/rr_threshold and then weighs rr_threshold, an unbiased and
+    cheaper estimate of the paper's deterministic tree (0: the paper's tree, every branch)."""
     aovs: bool = False
     """Append the AOV channels mask, sparsity, nx, ny, nz to rendered images."""
 
     def __post_init__(self):
         check_choice(self, 'mode', MODES)
         check_choice(self, 'terminal', TERMINALS)
-        check_numbers(self, at_least_zero=('max_depth',), positive=('gamma',))
+        check_numbers(self, at_least_zero=('max_depth', 'rr_threshold'), positive=('gamma',))
 
 
 @dataclass

@@ -144,7 +144,7 @@ class Trainer:
         cfg, it = self.cfg, self.iteration
         start = time.perf_counter()
         self.integrator.begin_step(StepState(step=it, cos_anneal_ratio=cfg.cos_anneal_ratio(it),
-                                             jitter_seed=step_seed(cfg.seed, it, JITTER)))
+                                             seed=step_seed(cfg.seed, it, JITTER)))
         ray, target = self.pixels.batch(it, cfg.batch_rays)
         result = self.integrator.render_rays(self.scene, ray)
         l_color = losses.color_l1(result.color, target)
