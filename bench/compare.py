@@ -155,7 +155,7 @@ def run_method(obj: str, key: str, out: str, cfg: dict, *, model_extra: dict | N
     name = run_name or key
     run_dir = os.path.join(out, obj, name)
     evaluation = os.path.join(run_dir, 'evaluation.json')
-    if os.path.isfile(evaluation) and runs.read_spec(run_dir).to_dict() == spec.to_dict():
+    if os.path.isfile(evaluation) and runs.read_spec(run_dir).same_run(spec):
         with open(evaluation) as f:
             return json.load(f)
     print(f'[{obj}] {label}: training {config.train.iterations} iterations in {run_dir}', flush=True)

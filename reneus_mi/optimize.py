@@ -67,7 +67,8 @@ def main(argv=None) -> int:
                                      description=__doc__.split('\n\n')[0],
                                      epilog=__doc__.split('\n\n', 1)[1])
     parser.add_argument('scene', nargs='?', help='Mitsuba scene XML with <integrator type="reneus">')
-    parser.add_argument('--data', help="dataset folder (overrides the integrator's 'dataset')")
+    parser.add_argument('--data', help="dataset folder (overrides the integrator's 'dataset'; with "
+                        "--resume, the run's own dataset moved elsewhere, checked to be the same)")
     parser.add_argument('-o', '--output', help='output folder (default: runs/<scene name>)')
     parser.add_argument('--resume', action='store_true', help="continue the output folder's run")
     parser.add_argument('--demo', action='store_true', help='reconstruct the embedded demo scene')
@@ -95,9 +96,11 @@ def run(args) -> str:
     out = args.output or os.path.join('runs', name)
     if args.resume:
         spec = runs.read_spec(out)
-        if args.scene or args.data:
-            raise ReneusError(f'{out}: --resume continues the run recorded in its config.json; '
-                              'a scene or --data cannot be given with it')
+        if args.scene:
+            raise ReneusError(f'{out}: --resume continues the run recorded in its config.json '
+                              f'(scene {spec.scene}); no scene can be given with it')
+        if args.data:
+            spec = spec.with_data(os.path.abspath(args.data))
     else:
         if os.path.isfile(os.path.join(out, runs.CHECKPOINT_FILE)):
             raise ReneusError(f'{out} already holds a run; continue it with --resume or choose '

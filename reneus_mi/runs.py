@@ -10,9 +10,13 @@ be interrupted and started again at no cost.
 """
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import os
 from dataclasses import dataclass
+
+import numpy as np
 
 from reneus_mi.config import ReconstructionConfig, from_dict, to_dict
 from reneus_mi.errors import ReneusError
@@ -33,10 +37,14 @@ class RunSpec:
     """The preset the configuration started from, for the record."""
     mesh_bounds: tuple | None = None
     """World box (lo, hi) to mesh in, instead of the container's (e.g. box-free data)."""
+    data_fingerprint: dict | None = None
+    """Views, image size and a digest of the cameras of the dataset the run was started on:
+    a resumed run checks that a dataset given anew (moved) is the same one."""
 
     def to_dict(self) -> dict:
         return {'scene': os.path.abspath(self.scene), 'data': os.path.abspath(self.data),
-                'preset': self.preset, 'mesh_bounds': self.mesh_bounds, **to_dict(self.config)}
+                'preset': self.preset, 'mesh_bounds': self.mesh_bounds,
+                'data_fingerprint': self.data_fingerprint, **to_dict(self.config)}
 
     @staticmethod
     def from_dict(d: dict, where: str) -> 'RunSpec':
@@ -45,9 +53,33 @@ class RunSpec:
             scene, data = d.pop('scene'), d.pop('data')
         except KeyError as e:
             raise ReneusError(f'{where}: no {e.args[0]!r} entry; expected scene, data, model, train') from None
-        preset, bounds = d.pop('preset', ''), d.pop('mesh_bounds', None)
+        preset, bounds, fingerprint = d.pop('preset', ''), d.pop('mesh_bounds', None), d.pop('data_fingerprint', None)
         config = from_dict(ReconstructionConfig, d, where)
-        return RunSpec(scene, data, config, preset, None if bounds is None else tuple(map(tuple, bounds)))
+        return RunSpec(scene, data, config, preset, None if bounds is None else tuple(map(tuple, bounds)),
+                       fingerprint)
+
+    def same_run(self, other: 'RunSpec') -> bool:
+        """Whether two specs describe the same run (a fingerprint not yet taken matches any)."""
+        a, b = self.to_dict(), other.to_dict()
+        if a['data_fingerprint'] is None or b['data_fingerprint'] is None:
+            a['data_fingerprint'] = b['data_fingerprint'] = None
+        return a == b
+
+    def with_data(self, data: str) -> 'RunSpec':
+        """The run on the dataset in ``data``, which must be the one it was started on (moved)."""
+        from reneus_mi.data import load_dataset
+        found = fingerprint(load_dataset(data, need_container=False))
+        if self.data_fingerprint is not None and found != self.data_fingerprint:
+            raise ReneusError(f'{data}: not the dataset this run was started on ({self.data}): '
+                              f'expected {self.data_fingerprint}, found {found}')
+        return dataclasses.replace(self, data=data)
+
+
+def fingerprint(ds) -> dict:
+    """What identifies a dataset for a run: views, image size, a digest of the cameras."""
+    cameras = np.concatenate([np.round(ds.K, 6).ravel(), np.round(ds.c2w, 6).ravel()])
+    return {'views': len(ds), 'width': ds.width, 'height': ds.height,
+            'cameras': hashlib.sha1(cameras.astype(np.float64).tobytes()).hexdigest()[:16]}
 
 
 def read_spec(out: str) -> RunSpec:
@@ -69,8 +101,6 @@ def write_spec(out: str, spec: RunSpec) -> None:
 
 def make_trainer(spec: RunSpec, out: str):
     """The scene, dataset and trainer of ``spec``; the integrator renders ``spec.config.model``."""
-    import dataclasses
-
     import reneus_mi  # noqa: F401  (variant, plugins)
     from reneus_mi.data import load_dataset
     from reneus_mi.render import load_scene
@@ -82,6 +112,8 @@ def make_trainer(spec: RunSpec, out: str):
                           'expected <integrator type="reneus">')
     integrator.configure(spec.config.model)
     dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus')
+    if spec.data_fingerprint is None:
+        spec.data_fingerprint = fingerprint(dataset)
     frame = integrator.frame_of(scene)
     if spec.mesh_bounds is not None:
         frame = dataclasses.replace(frame, bounds=spec.mesh_bounds)
@@ -115,7 +147,7 @@ def run_many(specs: dict[str, RunSpec], root: str, *, progress: bool = False) ->
         out = os.path.join(root, name)
         done = os.path.join(out, RESULT_FILE)
         started = os.path.isfile(os.path.join(out, CONFIG_FILE))
-        if started and read_spec(out).to_dict() != spec.to_dict():
+        if started and not read_spec(out).same_run(spec):
             raise ReneusError(f'{out}: holds a run with other settings; choose another folder')
         if os.path.isfile(done):
             with open(done) as f:

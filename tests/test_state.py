@@ -83,7 +83,7 @@ def test_hand_written_adam_loop_moves_the_field():
 def test_config_json_rebuilds_the_same_run(scene_xml, tmp_path):
     first = runs.run(tiny_spec(scene_xml, iterations=3), str(tmp_path / 'a'), progress=False)
     spec = runs.read_spec(str(tmp_path / 'a'))
-    assert spec.to_dict() == tiny_spec(scene_xml, iterations=3).to_dict()
+    assert spec.same_run(tiny_spec(scene_xml, iterations=3)) and spec.data_fingerprint['views'] == 12
     again = runs.run(spec, str(tmp_path / 'b'), progress=False)
     assert first['iterations'] == again['iterations'] == 3
 
@@ -128,3 +128,21 @@ def test_integrator_settings_are_typed_and_named(prop, value, message):
     with pytest.raises(Exception) as e:
         glass_scene(**{prop: value})
     assert message in user_message(e.value)
+
+
+def test_resume_on_a_moved_dataset_is_checked(scene_xml, tmp_path):
+    import shutil
+    from reneus_mi import optimize
+    data = os.path.join(os.path.dirname(scene_xml), 'box')
+    out = tmp_path / 'run'
+    runs.run(tiny_spec(scene_xml, iterations=2), str(out), progress=False)
+    moved = tmp_path / 'moved'
+    shutil.copytree(data, moved)
+    assert runs.read_spec(str(out)).with_data(str(moved)).data == str(moved)
+    other = tmp_path / 'other'
+    shutil.copytree(data, other)
+    meta = json.loads((other / 'transforms.json').read_text())
+    meta['frames'] = meta['frames'][:-1]
+    (other / 'transforms.json').write_text(json.dumps(meta))
+    with pytest.raises(SystemExit, match='not the dataset this run was started on'):
+        optimize.main(['-o', str(out), '--resume', '--data', str(other), '--iterations', '3', '--quiet'])
