@@ -38,8 +38,10 @@ class Field:
 
     #: Length of the feature vector that geometry() returns.
     n_features: int = 0
-    #: Step of the finite-difference gradient, in world units.
-    fd_step: float = 1e-3
+    #: Step of the finite-difference gradient, in world units: a Python float, or
+    #: an opaque Dr.Jit scalar for a step that changes during training (kernels
+    #: then read it from memory instead of being recompiled for each value).
+    fd_step: float | mi.Float = 1e-3
     #: Radius of the sphere, centred at the origin, outside which the field is empty.
     bound: float = 1.0
 
@@ -70,6 +72,14 @@ class Field:
             ev = mi.Vector3f(*e)
             grad += ev * self.sdf(x + ev * h)
         return g, grad * (1.0 / (4.0 * h)), feature
+
+    # -------------------------------------------------------------- training
+    def set_step(self, step: int) -> None:
+        """Follow the training schedule: the trainer calls this before each step."""
+
+    def lr_scale(self) -> dict[str, float]:
+        """Learning-rate multipliers per key of :meth:`params` (absent keys: 1)."""
+        return {}
 
     # ------------------------------------------------------------ parameters
     def params(self) -> dict[str, mi.Float]:
