@@ -43,15 +43,15 @@ _SDF_HEAD_GAIN = 1e-3
 class HashGridFieldConfig:
     """Architecture and schedule of :class:`HashGridField`; defaults suit a CPU."""
 
-    n_levels: int = 16
+    n_levels: int = 8
     """Resolution levels of the hash grid."""
     features_per_level: int = 2
     """Features stored per grid vertex and level (2, 4 or 8)."""
-    log2_hashmap_size: int = 17
+    log2_hashmap_size: int = 16
     """log2 of the number of entries per level's hash table (dense levels use fewer)."""
     base_resolution: int = 16
     """Grid vertices per axis of the coarsest level, across the cube [-1, 1]^3."""
-    finest_resolution: int = 1024
+    finest_resolution: int = 512
     """Grid vertices per axis of the finest level; the levels are spaced geometrically."""
     hidden: int = 32
     """Width of the SDF network."""
@@ -65,7 +65,7 @@ class HashGridFieldConfig:
     """Length of the feature vector passed from the SDF to the radiance network."""
     color_hidden: int = 32
     """Width of the radiance network."""
-    color_layers: int = 2
+    color_layers: int = 1
     """Hidden (ReLU) layers of the radiance network."""
     multires_view: int = 2
     """Octaves of the positional encoding of the viewing direction."""
@@ -73,7 +73,7 @@ class HashGridFieldConfig:
     """Radius of the sphere that the untrained SDF represents."""
     init_variance: float = 0.3
     """Initial value of NeuS's ``variance``; inv_s = exp(10 * variance)."""
-    levels_start: int = 4
+    levels_start: int = 3
     """Levels open at step 0 (coarse to fine, Neuralangelo)."""
     level_steps: int = 100
     """Training steps between the opening of two levels."""
