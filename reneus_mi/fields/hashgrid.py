@@ -5,18 +5,25 @@ The SDF is a residual on a sphere,
     g(x) = |x| - r + MLP(x, H(x))[0],
 
 with H the concatenated features of a ``drjit.nn.HashGridEncoding`` over the
-field's cube [-1, 1]^3 and a one- or two-layer cooperative-vector MLP whose
-SDF head starts ~1000x smaller than its fan-in initialisation: the untrained
-field is the sphere of radius ``init_radius`` (to ~1e-3), and every parameter
-receives a gradient from the first step. The MLP's second head is the feature
-vector handed to NeuS's radiance network.
+field's cube [-1, 1]^3 and a small cooperative-vector MLP whose SDF head
+starts ~1000x smaller than its fan-in initialisation: the untrained field is
+the sphere of radius ``init_radius`` (to ~1e-3), and every parameter receives
+a gradient from the first step. The MLP's second head is the feature vector
+handed to NeuS's radiance network.
+
+∇g is analytic by default: the trilinear weights' derivatives come with the
+corner lookups, and the MLP is backpropagated by hand with transposed
+``nn.matvec`` (Dr.Jit has no second-order autodiff, but this is first order
+in the parameters). One grid lookup instead of the tetrahedral finite
+difference's five: forward+backward of ``gradient`` + ``radiance`` measured
+2.2-2.9x faster than ``gradient='numerical'`` on the CPU (bench/fields.py).
 
 Coarse to fine (Neuralangelo): only the ``levels_start`` coarsest levels are
 open at step 0 and one more opens every ``level_steps`` steps; the features of
-closed levels are multiplied by zero inside the kernel, and the
-finite-difference step of the SDF gradient is the cell size of the finest open
-level. The open level count and the step are opaque Dr.Jit scalars, so
-:meth:`HashGridField.set_step` never triggers a recompilation.
+closed levels (and their derivatives) are multiplied by zero inside the
+kernel. With ``gradient='numerical'`` the finite-difference step follows the
+cell size of the finest open level. The open level count and the step are
+opaque Dr.Jit scalars, so :meth:`HashGridField.set_step` never recompiles.
 """
 from __future__ import annotations
 
