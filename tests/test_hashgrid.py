@@ -237,3 +237,18 @@ def test_bad_parameter_and_feature_widths():
     x = mi.Point3f(0.0, 0.0, 0.5)
     with pytest.raises(ValueError, match='1 feature channels, expected 4'):
         field.radiance(x, mi.Vector3f(0, 0, 1), mi.Vector3f(0, 0, 1), [mi.Float(0)])
+
+
+def test_half_precision_field_follows_the_float32_one(tmp_path):
+    """dtype='float16' is what CUDA runs (cooperative vectors pack only half
+    there); on the CPU it must agree with float32 to half precision."""
+    half = HashGridField(dtype='float16', seed=2, **TINY)
+    full = HashGridField(dtype='float32', seed=2, **TINY)
+    assert dr.is_half_v(half.params()['sdf.grid']) and dr.is_half_v(half.params()['sdf.weights'])
+    assert not dr.is_half_v(half.params()['variance'])
+    for a, b in zip(outputs(half), outputs(full)):
+        assert np.allclose(a, b, atol=1e-2, rtol=1e-2)
+    half.save(tmp_path / 'h.npz')
+    loaded = load_field(tmp_path / 'h.npz')
+    for a, b in zip(outputs(half), outputs(loaded)):
+        assert np.array_equal(a, b)
