@@ -49,7 +49,11 @@ def points(n: int):
     v = rng.normal(size=(3, n))
     v /= np.linalg.norm(v, axis=0)
     w = mi.Float(rng.uniform(0.5, 1.5, n).astype(np.float32))
-    return x, mi.Vector3f(v.astype(np.float32)), w
+    v = mi.Vector3f(v.astype(np.float32))
+    # Evaluated here: a Point3f still pointing into a (3, n) NumPy buffer carries n
+    # into every kernel that reads it (a new kernel per point count).
+    dr.eval(x, v, w)
+    return x, v, w
 
 
 def evaluate(field, x, v, w, backward: bool) -> None:
