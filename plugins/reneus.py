@@ -138,8 +138,16 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         self._container = None
         self.configure(model, field)
 
-    def configure(self, model: ModelConfig, field: Field | None = None) -> None:
-        """Render with ``model`` (and ``field``, else a fresh one built from ``model.field``)."""
+    def configure(self, model: ModelConfig | None = None, field: Field | None = None) -> None:
+        """Render with ``model`` (default: the current one) and ``field``.
+
+        Without ``field`` a fresh one is built from ``model.field``; a given
+        field (e.g. a trained one, :func:`~reneus_mi.fields.load_field`) sets
+        ``model.field`` to its own configuration.
+        """
+        model = model or self.model
+        if field is not None:
+            model = dataclasses.replace(model, field=field.Config(**field.config()))
         self.model = model
         self.field = field if field is not None else model.field.setup()
 

@@ -129,7 +129,7 @@ class Trainer:
         path = self.checkpoint_path
         if not os.path.isfile(path):
             raise ReneusError(f'{path}: no checkpoint to resume from')
-        self.integrator.configure(self.integrator.model, load_field(path))
+        self.integrator.configure(field=load_field(path))
         self._setup_optimizer()
         names = {key: self._name(key) for key in self.opt.keys()}
         meta = checkpoint.restore(path, self.opt, names, self.scaler)

@@ -51,8 +51,10 @@ class Field:
 
     #: Length of the feature vector that geometry() returns.
     n_features: int = 0
-    #: Step of the finite-difference gradient, in world units.
-    fd_step: float = 1e-3
+    #: Step of the finite-difference gradient, in world units: a Python float, or
+    #: an opaque Dr.Jit scalar for a step that changes during training (kernels
+    #: then read it from memory instead of being recompiled for each value).
+    fd_step: float | mi.Float = 1e-3
     #: Radius of the sphere, centred at the origin, outside which the field is empty.
     bound: float = 1.0
 
