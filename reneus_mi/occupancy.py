@@ -94,12 +94,13 @@ class OccupancyGrid:
             t_in = dr.maximum(t_in, dr.select(flat, dr.select(inside_slab, -inf, inf), dr.minimum(t0, t1)))
             t_out = dr.minimum(t_out, dr.select(flat, dr.select(inside_slab, inf, -inf), dr.maximum(t0, t1)))
         crosses = t_in < t_out
-        # Conservative outside the cube: a segment that starts (ends) outside keeps its start (end).
-        first = dr.select(crosses & (t_in > t_near), t_near, inf)
-        last = dr.select(crosses & (t_out < t_far), t_far, -inf)
+        # Conservative outside the cube: a segment keeps the parts before it enters
+        # and after it leaves, and all of itself if it misses the cube.
+        starts_out = crosses & (t_in > t_near)
+        ends_out = crosses & (t_out < t_far)
         misses = (t_in >= t_out) & (t_near < t_far)
-        first = dr.select(misses, t_near, first)
-        last = dr.select(misses, t_far, last)
+        first = dr.select(starts_out | misses, t_near, inf)
+        last = dr.select(misses, t_far, dr.select(starts_out, t_in, -inf))
 
         # 3D-DDA (Amanatides & Woo) from the entry cell to the exit.
         start = q0 + dq * t_in
@@ -140,4 +141,5 @@ class OccupancyGrid:
 
         state = dr.while_loop((mi.Bool(crosses), *idx, *t_next, mi.Float(t_in), first, last), cond, body,
                               labels=('active', 'ix', 'iy', 'iz', 'nx', 'ny', 'nz', 't', 'first', 'last'))
-        return state[-2], state[-1]
+        first, last = state[-2], state[-1]
+        return dr.select(ends_out, dr.minimum(first, t_out), first), dr.select(ends_out, t_far, last)

@@ -112,6 +112,35 @@ def _dr(o, d, t_far):
             dr.zeros(mi.Float, n), mi.Float(t_far))
 
 
+def test_span_matches_a_dense_march_through_a_random_grid():
+    res, n = 8, 400
+    grid = OccupancyGrid(res, 1.0, lipschitz=1.0, margin=0.0)
+    rng = np.random.default_rng(4)
+    occupied = rng.uniform(size=res ** 3) < 0.03
+    grid.occupied = mi.Bool(occupied)
+    # Segments inside the cube, some of them starting or ending outside it.
+    o = rng.uniform(-1.2, 1.2, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d[:50, 1:] = 0.0  # axis-aligned: divisions by zero in the march
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t_far = rng.uniform(0.2, 2.5, n)
+    first, last = (np.asarray(v) for v in grid.span(*_dr(o, d, np.zeros(n))[:2], mi.Float(np.zeros(n)),
+                                                     mi.Float(t_far)))
+    t = np.linspace(0.0, 1.0, 20001)[None, :] * t_far[:, None]
+    x = o[:, None] + t[..., None] * d[:, None]
+    cell = np.floor((x + 1.0) * res / 2.0).astype(int)
+    outside = np.any((cell < 0) | (cell >= res), axis=-1)
+    cell = np.clip(cell, 0, res - 1)
+    hit = occupied[(cell[..., 2] * res + cell[..., 1]) * res + cell[..., 0]] | outside
+    step = t_far / 20000
+    for r in range(n):
+        if not hit[r].any():
+            assert first[r] > last[r], r
+            continue
+        ts = t[r][hit[r]]
+        assert abs(first[r] - ts.min()) <= step[r] + 1e-5 and abs(last[r] - ts.max()) <= step[r] + 1e-5, r
+
+
 @pytest.mark.parametrize('name', FIELDS)
 def test_span_holds_every_point_of_the_segment_inside_the_surface(name):
     field = FIELDS[name](1e6)
