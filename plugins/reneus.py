@@ -1,6 +1,7 @@
 """The ``reneus`` integrator: ReNeuS's hybrid renderer (Sec. 3.3 of the paper)."""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import drjit as dr
@@ -8,15 +9,18 @@ import mitsuba as mi
 
 from reneus_mi.fields import FIELD_KINDS, Field, load_field
 from reneus_mi.optics import interface
-from reneus_mi.renderer import volume_render
+from reneus_mi.ray_samplers import SamplerConfig
+from reneus_mi.volume_rendering import volume_render
 
 VARIANT = mi.variant()
 
 MODES = ('reneus', 'neus', 'neus_plus')
 
+#: Parameters that configure the integrator's sampler (:class:`SamplerConfig`'s fields).
+_SAMPLER_PARAMETERS = tuple(f.name for f in dataclasses.fields(SamplerConfig))
 #: Integrator parameters other than ``field_*`` constructor arguments.
-_PARAMETERS = ('mode', 'max_depth', 'terminal', 'rr_depth', 'n_coarse', 'n_fine', 'n_upsample_steps',
-               'upsample_s', 'gamma', 'aovs', 'field', 'field_center', 'field_scale', 'dataset')
+_PARAMETERS = ('mode', 'max_depth', 'terminal', 'rr_depth', 'gamma', 'aovs', 'field', 'field_center',
+               'field_scale', 'dataset') + _SAMPLER_PARAMETERS
 
 #: Names of the AOV channels, after R, G, B (and alpha where the film has it).
 AOV_NAMES = ('mask', 'sparsity', 'nx', 'ny', 'nz')
@@ -87,20 +91,18 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
        - |string|
        - What a ray left at the depth limit sees beyond its last segment:
          ``ambient`` or ``black`` (see above). (Default: ``ambient``)
-     * - n_coarse
-       - |int|
-       - Coarse (stratified) samples per inside segment. (Default: 64)
-     * - n_fine
-       - |int|
-       - Importance samples per inside segment, added in ``n_upsample_steps``
-         rounds as in NeuS. (Default: 64)
-     * - n_upsample_steps
-       - |int|
-       - Rounds of NeuS's hierarchical up-sampling. (Default: 4)
-     * - upsample_s
-       - |float|
-       - Fixed sharpness of the first up-sampling round, doubled each round.
-         (Default: 64)
+     * - n_coarse, n_fine, n_upsample_steps, upsample_s
+       - |int|, |float|
+       - NeuS's hierarchical sampling of each inside segment: coarse
+         (stratified) samples, importance samples added in ``n_upsample_steps``
+         rounds, the fixed sharpness of the first round (doubled each round).
+         (Defaults: :class:`reneus_mi.ray_samplers.SamplerConfig`)
+     * - occupancy_resolution, occupancy_lipschitz, occupancy_margin, occupancy_update_every
+       - |int|, |float|
+       - Empty-space skipping: an occupancy grid of the SDF with
+         ``occupancy_resolution``^3 cells clips every inside segment to where
+         the surface can be (0 turns it off). (Defaults:
+         :class:`reneus_mi.ray_samplers.SamplerConfig`)
      * - gamma
        - |float|
        - Output is C^(1/gamma) (the paper's camera response); 1 gives linear
@@ -147,13 +149,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         self.terminal = props.get('terminal', 'ambient')
         if self.terminal not in ('ambient', 'black'):
             raise ValueError(f"reneus integrator: terminal={self.terminal!r}; expected 'ambient' or 'black'")
-        self.n_coarse = _positive(props, 'n_coarse', 64)
-        self.n_fine = _positive(props, 'n_fine', 64, allow_zero=True)
-        self.n_upsample_steps = _positive(props, 'n_upsample_steps', 4)
-        if self.n_fine % self.n_upsample_steps:
-            raise ValueError(f'reneus integrator: n_fine={self.n_fine} must be a multiple of '
-                             f'n_upsample_steps={self.n_upsample_steps}')
-        self.upsample_s = float(props.get('upsample_s', 64.0))
+        try:
+            self.sampler = SamplerConfig(**{name: props.get(name) for name in _SAMPLER_PARAMETERS
+                                            if name in props}).setup()
+        except ValueError as e:
+            raise ValueError(f'reneus integrator: {e}') from None
         self.gamma = float(props.get('gamma', 2.2))
         if self.gamma <= 0:
             raise ValueError(f'reneus integrator: gamma={self.gamma}; expected > 0 (1 = linear output)')
@@ -198,7 +198,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     def to_string(self):
         return (f'ReNeuSIntegrator[mode={self.mode}, max_depth={self.max_depth}, terminal={self.terminal}, '
-                f'samples={self.n_coarse}+{self.n_fine}, field={type(self.field).__name__}]')
+                f'samples={self.sampler.config.n_coarse}+{self.sampler.config.n_fine}, '
+                f'field={type(self.field).__name__}]')
 
     def sample(self, mode, scene, sampler, ray, δL=None, state_in=None, active=True, **kwargs):
         if self._exposed_changed:
@@ -287,9 +288,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         r = self.field_scale
         o_field = (s.o - mi.Point3f(*self.field_center)) / r
         u = None if jitter is None else dr.gather(mi.Float, jitter, s.camera)
-        vr = volume_render(self.field, o_field, s.d, dr.zeros(mi.Float, dr.width(seg)), t / r,
-                           n_coarse=self.n_coarse, n_fine=self.n_fine,
-                           n_upsample_steps=self.n_upsample_steps, upsample_s=self.upsample_s,
+        vr = volume_render(self.field, self.sampler, o_field, s.d, dr.zeros(mi.Float, dr.width(seg)), t / r,
                            jitter=u, cos_anneal_ratio=cos_anneal_ratio)
         acc.add(s.camera, s.β * vr.color, mi.Bool(True))
         acc.add_segment(s.camera, s.β * vr.normal, 1.0 - vr.transmittance, vr.eikonal, vr.n_samples)
@@ -399,13 +398,6 @@ def _ambient(scene: mi.Scene, d: mi.Vector3f) -> mi.Color3f:
     si = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
     si.wi = -d
     return scene.environment().eval(si)
-
-
-def _positive(props, name, default, allow_zero=False) -> int:
-    value = props.get(name, default)
-    if value < 0 or (value == 0 and not allow_zero):
-        raise ValueError(f"reneus integrator: {name}={value}; expected an integer {'>= 0' if allow_zero else '> 0'}")
-    return int(value)
 
 
 def _make_field(props) -> Field:

@@ -148,8 +148,9 @@ GLASS = '<shape type="cube"><bsdf type="dielectric"><float name="int_ior" value=
 def test_xml_with_every_parameter():
     scene = mi.load_string(XML.format(mode='reneus', depth=3, shape=GLASS))
     it = scene.integrator()
-    assert (it.mode, it.max_depth, it.n_coarse, it.n_fine, it.n_upsample_steps) == ('reneus', 3, 16, 8, 2)
-    assert (it.upsample_s, it.gamma, it.aovs_enabled, it.dataset) == (32.0, 2.2, True, 'some/folder')
+    cfg = it.sampler.config
+    assert (it.mode, it.max_depth, cfg.n_coarse, cfg.n_fine, cfg.n_upsample_steps) == ('reneus', 3, 16, 8, 2)
+    assert (cfg.upsample_s, it.gamma, it.aovs_enabled, it.dataset) == (32.0, 2.2, True, 'some/folder')
     assert it.field_center == (0.1, 0.0, 0.0) and it.field_scale == 1.5
     assert it.field.radius == 0.25 and it.field.color == pytest.approx((0.2, 0.5, 0.7))
     assert float(it._container_eta(scene)[0]) == pytest.approx(1.5 / 1.000277, rel=1e-5)
