@@ -8,13 +8,14 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.config import ModelConfig, RenderConfig, SamplerConfig, field_config_class, typed_value
+from reneus_mi.config import ModelConfig, RenderConfig, field_config_class, typed_value
 from reneus_mi.errors import ReneusError
 from reneus_mi.fields import FIELD_CONFIGS, Field, load_field
 from reneus_mi.frame import FieldFrame
 from reneus_mi.optics import interface
 from reneus_mi.presets import preset
-from reneus_mi.renderer import volume_render
+from reneus_mi.ray_samplers import SamplerConfig
+from reneus_mi.volume_rendering import volume_render
 
 VARIANT = mi.variant()
 
@@ -102,9 +103,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
        - The ray tree (:class:`~reneus_mi.config.RenderConfig`): ``reneus``,
          ``neus`` or ``neus_plus``; D_re; ``ambient`` or ``black``; the output
          is C^(1/gamma); AOVs ``mask``, ``sparsity``, ``nx, ny, nz``.
-     * - n_coarse, n_fine, n_upsample_steps, upsample_s
-       - |int|, |int|, |int|, |float|
-       - Samples per inside segment (:class:`~reneus_mi.config.SamplerConfig`).
+     * - n_coarse, n_fine, n_upsample_steps, upsample_s, occupancy_*
+       - |int|, |int|, |int|, |float|, ...
+       - Samples per inside segment and the occupancy grid that skips empty space
+         (:class:`~reneus_mi.ray_samplers.SamplerConfig`).
      * - field
        - |string|
        - The field's kind (``neus``, ``sphere``, ``box``, ``torus``, ...) or the
@@ -150,6 +152,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             model = dataclasses.replace(model, field=field.Config(**field.config()))
         self.model = model
         self.field = field if field is not None else model.field.setup()
+        self.sampler = model.sampler.setup()
 
     # ------------------------------------------------------------ Mitsuba API
     def aov_names(self):
@@ -181,6 +184,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         """Take the schedule values of a training step (the trainer calls this once per step)."""
         self.state = state
         self.field.set_step(state.step)
+        self.sampler.update(self.field, state.step)
 
     def render_rays(self, scene: mi.Scene, ray: mi.Ray3f, active: mi.Bool | bool = True) -> RayTreeResult:
         """Render camera rays (world space): the pixel values and the per-ray loss terms.
@@ -261,11 +265,9 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         s = rays.take(seg)
         t = dr.gather(mi.Float, t_far, seg)
         u = None if jitter is None else dr.gather(mi.Float, jitter, s.camera)
-        sampling = self.model.sampler
-        vr = volume_render(self.field, self.frame.to_field(s.o), s.d, dr.zeros(mi.Float, dr.width(seg)),
-                           t / self.frame.scale, n_coarse=sampling.n_coarse, n_fine=sampling.n_fine,
-                           n_upsample_steps=sampling.n_upsample_steps, upsample_s=sampling.upsample_s,
-                           jitter=u, cos_anneal_ratio=self.state.cos_anneal_ratio)
+        vr = volume_render(self.field, self.sampler, self.frame.to_field(s.o), s.d,
+                           dr.zeros(mi.Float, dr.width(seg)), t / self.frame.scale, jitter=u,
+                           cos_anneal_ratio=self.state.cos_anneal_ratio)
         acc.add(s.camera, s.β * vr.color, mi.Bool(True))
         acc.add_segment(s.camera, s.β * vr.normal, 1.0 - vr.transmittance, vr.eikonal, vr.n_samples)
         dr.scatter(T, vr.transmittance, seg)

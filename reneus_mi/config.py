@@ -25,29 +25,9 @@ from dataclasses import dataclass
 
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
 from reneus_mi.fields import FIELD_CONFIGS, FieldConfig, NeuSFieldConfig
+from reneus_mi.ray_samplers import SamplerConfig
 
 MODES = ('reneus', 'neus', 'neus_plus')
-
-
-@dataclass
-class SamplerConfig:
-    """NeuS's hierarchical sampling of each inside segment."""
-
-    n_coarse: int = 64
-    """Coarse (stratified) samples per inside segment."""
-    n_fine: int = 64
-    """Importance samples per inside segment, added in n_upsample_steps rounds as in NeuS."""
-    n_upsample_steps: int = 4
-    """Rounds of NeuS's hierarchical up-sampling."""
-    upsample_s: float = 64.0
-    """Fixed sharpness of the first up-sampling round, doubled each round."""
-
-    def __post_init__(self):
-        check_numbers(self, positive=('n_coarse', 'n_upsample_steps', 'upsample_s'),
-                      at_least_zero=('n_fine',))
-        if self.n_fine % self.n_upsample_steps:
-            raise ReneusError(f'SamplerConfig: n_fine={self.n_fine} must be a multiple of '
-                              f'n_upsample_steps={self.n_upsample_steps}')
 TERMINALS = ('ambient', 'black')
 
 

@@ -2,7 +2,9 @@
 
 The integrator traces camera rays through the glass and hands every segment that
 lies inside the container to :func:`volume_render`, in the field's frame. The
-segment is sampled hierarchically (:mod:`reneus_mi.sampler`); the samples and
+segment is sampled hierarchically by the integrator's sampler
+(:mod:`reneus_mi.ray_samplers`), after its occupancy grid, if it has one, has
+clipped the segment to where the surface can be; the samples and
 the segment's ends bound S - 1 sections that tile [t_near, t_far]. Each section
 is evaluated once, at its midpoint: SDF g, gradient ∇g, feature and radiance c.
 As NeuS, the SDF at the section's ends is extrapolated with the (annealed)
@@ -26,7 +28,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.sampler import composite, neus_alpha, sample_segments, segment_layout
+from reneus_mi.ray_samplers import NeuSSampler, composite, neus_alpha, segment_layout
 
 
 @dataclass
@@ -43,26 +45,9 @@ class VolumeResult:
     """Σ_i w_i n_i, n_i the normalised SDF gradient (not normalised)."""
     eikonal: mi.Float
     """Σ_i (|∇g(x_i)| - 1)² over the segment's sections (a sum, not a mean)."""
-    n_samples: int
-    """Sections (field evaluations) per segment, to turn ``eikonal`` into a mean."""
-
-
-def _check_options(n_coarse, n_fine, n_upsample_steps, upsample_s, cos_anneal_ratio):
-    if not isinstance(n_coarse, int) or n_coarse < 1:
-        raise ValueError(f'volume_render: n_coarse={n_coarse!r}, expected an integer >= 1')
-    if not isinstance(n_fine, int) or n_fine < 0:
-        raise ValueError(f'volume_render: n_fine={n_fine!r}, expected an integer >= 0')
-    if n_fine > 0:
-        if not isinstance(n_upsample_steps, int) or n_upsample_steps < 1:
-            raise ValueError(f'volume_render: n_upsample_steps={n_upsample_steps!r}, '
-                             'expected an integer >= 1 when n_fine > 0')
-        if n_fine % n_upsample_steps:
-            raise ValueError(f'volume_render: n_fine={n_fine} is not a multiple of '
-                             f'n_upsample_steps={n_upsample_steps}')
-        if not upsample_s > 0:
-            raise ValueError(f'volume_render: upsample_s={upsample_s!r}, expected a positive number')
-    if not 0.0 <= cos_anneal_ratio <= 1.0:
-        raise ValueError(f'volume_render: cos_anneal_ratio={cos_anneal_ratio!r}, expected a value in [0, 1]')
+    n_samples: mi.UInt32
+    """Sections (field evaluations) per segment, to turn ``eikonal`` into a mean
+    (0 for a segment that the occupancy grid skipped)."""
 
 
 def _check_widths(**arrays) -> int:
@@ -75,27 +60,54 @@ def _check_widths(**arrays) -> int:
     return n_rays
 
 
-def volume_render(field, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float, t_far: mi.Float, *,
-                  n_coarse: int = 64, n_fine: int = 64, n_upsample_steps: int = 4,
-                  upsample_s: float = 64.0, jitter: mi.Float | None = None,
-                  cos_anneal_ratio: float = 1.0) -> VolumeResult:
+def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float,
+                  t_far: mi.Float, *, jitter: mi.Float | None = None, cos_anneal_ratio: float = 1.0) -> VolumeResult:
     """Volume render the segments ``o + t d``, ``t ∈ [t_near, t_far]``, through ``field``.
 
-    ``d`` must be unit length. ``jitter`` (one value in [0, 1) per segment, or None
-    for the stratum midpoints) offsets the coarse samples during training.
+    ``sampler`` places the samples (``SamplerConfig(...).setup()``). ``d`` must be
+    unit length. ``jitter`` (one value in [0, 1) per segment, or None for the
+    stratum midpoints) offsets the coarse samples during training.
     ``cos_anneal_ratio`` is NeuS's: 0 uses the smoothed cosine (1 - cos)/2 early in
     training, 1 the true cosine. A segment with ``t_far <= t_near`` contributes
-    nothing (transmittance 1), so callers can mask lanes that way.
+    nothing (transmittance 1), so callers can mask lanes that way; so does one
+    that the sampler's occupancy grid finds empty, at no field evaluation.
     """
-    _check_options(n_coarse, n_fine, n_upsample_steps, upsample_s, cos_anneal_ratio)
+    if not 0.0 <= cos_anneal_ratio <= 1.0:
+        raise ValueError(f'volume_render: cos_anneal_ratio={cos_anneal_ratio!r}, expected a value in [0, 1]')
     n_rays = _check_widths(o=o, d=d, t_near=t_near, t_far=t_far, jitter=jitter)
-    n = n_coarse + n_fine + 1
+    if n_rays == 0:
+        return _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio)
+    segments = sampler.clip(field, o, d, t_near, t_far)
+    keep = segments.index
+    if keep is None:
+        return _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio)
+    n_kept = dr.width(keep)
+    r = _render(field, sampler, dr.gather(mi.Point3f, o, keep), dr.gather(mi.Vector3f, d, keep),
+                segments.t_near, segments.t_far, None if jitter is None else dr.gather(mi.Float, jitter, keep),
+                cos_anneal_ratio)
+    if n_kept == n_rays:
+        return r
+
+    def spread(cls, value, fill):
+        full = dr.full(cls, fill, n_rays)
+        if n_kept:
+            dr.scatter(full, value, keep)
+        return full
+
+    return VolumeResult(color=spread(mi.Color3f, r.color, 0.0), transmittance=spread(mi.Float, r.transmittance, 1.0),
+                        depth=spread(mi.Float, r.depth, 0.0), normal=spread(mi.Vector3f, r.normal, 0.0),
+                        eikonal=spread(mi.Float, r.eikonal, 0.0), n_samples=spread(mi.UInt32, r.n_samples, 0))
+
+
+def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio) -> VolumeResult:
+    """:func:`volume_render` of segments that all need sampling."""
+    n_rays = dr.width(o)
+    n = sampler.config.n_coarse + sampler.config.n_fine + 1
     if n_rays == 0:
         return VolumeResult(dr.zeros(mi.Color3f, 0), dr.zeros(mi.Float, 0), dr.zeros(mi.Float, 0),
-                            dr.zeros(mi.Vector3f, 0), dr.zeros(mi.Float, 0), n)
+                            dr.zeros(mi.Vector3f, 0), dr.zeros(mi.Float, 0), dr.zeros(mi.UInt32, 0))
 
-    t, n_t = sample_segments(field, o, d, t_near, t_far, n_coarse=n_coarse, n_fine=n_fine,
-                             n_upsample_steps=n_upsample_steps, upsample_s=upsample_s, jitter=jitter)
+    t, n_t = sampler.sample(field, o, d, t_near, t_far, jitter)
     ray, i = segment_layout(n_rays, n)
     lo = dr.gather(mi.Float, t, ray * n_t + i)
     hi = dr.gather(mi.Float, t, ray * n_t + i + 1)
@@ -127,4 +139,4 @@ def volume_render(field, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float, t_far:
     weights, transmittance = composite(alpha, n)
     color, depth, normal, eikonal = dr.block_sum((color * weights, t_mid * weights, normal * weights, eikonal), n)
     return VolumeResult(color=color, transmittance=transmittance, depth=depth, normal=normal,
-                        eikonal=eikonal, n_samples=n)
+                        eikonal=eikonal, n_samples=dr.full(mi.UInt32, n, n_rays))

@@ -7,7 +7,8 @@ import drjit as dr
 import mitsuba as mi
 
 from reneus_mi.fields import Field, SphereField
-from reneus_mi.renderer import volume_render
+from reneus_mi.ray_samplers import SamplerConfig
+from reneus_mi.volume_rendering import volume_render
 
 COLOR = (0.2, 0.5, 0.8)
 
@@ -71,10 +72,10 @@ def test_sharp_sphere_hits_and_misses():
     hit = y ** 2 + z ** 2 < 0.25
     o, d, t_near, t_far = _rays(y, z)
     for jitter in (None, mi.Float(rng.uniform(0, 1, len(y)))):
-        r = volume_render(field, o, d, t_near, t_far, n_coarse=32, n_fine=32, jitter=jitter)
+        r = volume_render(field, SamplerConfig(n_coarse=32, n_fine=32).setup(), o, d, t_near, t_far, jitter=jitter)
         trans, color = np.asarray(r.transmittance), np.asarray(r.color).T
         depth, normal = np.asarray(r.depth), np.asarray(r.normal).T
-        assert r.n_samples == 65
+        assert np.all(np.asarray(r.n_samples) == 65)
         assert np.all(trans[hit] < 1e-4)
         np.testing.assert_allclose(color[hit], np.tile(COLOR, (hit.sum(), 1)), atol=1e-3)
         # Hit distance from x0 = -1.5 to the sphere: 1.5 - sqrt(r² - y² - z²).
@@ -92,7 +93,7 @@ def test_soft_field_matches_dense_quadrature():
     rng = np.random.default_rng(1)
     y, z = rng.uniform(-0.8, 0.8, 24), rng.uniform(-0.5, 0.5, 24)
     color, trans, depth = _reference(y, z, 0.45, 20.0)
-    r = volume_render(ParamSphere(radius=0.45, inv_s=20.0), *_rays(y, z))  # 64 + 64 samples
+    r = volume_render(ParamSphere(radius=0.45, inv_s=20.0), SamplerConfig().setup(), *_rays(y, z))  # 64 + 64 samples
     # Quadrature error (observed <= 1.5e-3) plus NeuS's ε: 1e-5 of opacity per
     # section, 129 sections (1024 uniform sections would be 1e-2 off).
     np.testing.assert_allclose(np.asarray(r.transmittance), trans, atol=4e-3)
@@ -102,13 +103,14 @@ def test_soft_field_matches_dense_quadrature():
 
 def test_eikonal_counts_each_sample():
     y = np.array([0.05, 0.3, 0.9])
-    r = volume_render(ParamSphere(scale=1.5), *_rays(y, 0 * y), n_coarse=8, n_fine=8, n_upsample_steps=2)
+    sampler = SamplerConfig(n_coarse=8, n_fine=8, n_upsample_steps=2).setup()
+    r = volume_render(ParamSphere(scale=1.5), sampler, *_rays(y, 0 * y))
     # |∇g| = 1.5 everywhere (the stencil is exact up to O(h²) curvature terms).
-    np.testing.assert_allclose(np.asarray(r.eikonal), r.n_samples * 0.25, rtol=1e-3)
+    np.testing.assert_allclose(np.asarray(r.eikonal), np.asarray(r.n_samples) * 0.25, rtol=1e-3)
 
 
 def _loss(field, rays, n_fine):
-    r = volume_render(field, *rays, n_coarse=32, n_fine=n_fine, n_upsample_steps=2)
+    r = volume_render(field, SamplerConfig(n_coarse=32, n_fine=n_fine, n_upsample_steps=2).setup(), *rays)
     return dr.sum(r.color.x + 0.5 * r.color.y + 0.25 * r.color.z + 0.3 * r.transmittance
                   + 0.2 * r.depth + 0.1 * r.normal.y + 0.05 * r.eikonal)
 
@@ -138,18 +140,16 @@ def test_gradients_match_finite_differences():
 
 def test_degenerate_inputs():
     field = SphereField(radius=0.5)
-    empty = volume_render(field, mi.Point3f(), mi.Vector3f(), mi.Float(), mi.Float())
+    empty = volume_render(field, SamplerConfig().setup(), mi.Point3f(), mi.Vector3f(), mi.Float(), mi.Float())
     assert dr.width(empty.color) == 0 and dr.width(empty.transmittance) == 0
     # Zero-length segments inside the object absorb nothing.
     o, d, _, _ = _rays(np.zeros(2), np.zeros(2), x0=0.0)
-    r = volume_render(field, o, d, mi.Float(0.1, 0.2), mi.Float(0.1, 0.1), n_coarse=4, n_fine=0)
+    r = volume_render(field, SamplerConfig(n_coarse=4, n_fine=0).setup(), o, d, mi.Float(0.1, 0.2), mi.Float(0.1, 0.1))
     np.testing.assert_allclose(np.asarray(r.transmittance), 1.0)
     np.testing.assert_allclose(np.asarray(r.color), 0.0)
 
     o, d, t_near, t_far = _rays(np.zeros(3), np.zeros(3))
-    with pytest.raises(ValueError, match='n_upsample_steps'):
-        volume_render(field, o, d, t_near, t_far, n_fine=10, n_upsample_steps=4)
     with pytest.raises(ValueError, match='t_far'):
-        volume_render(field, o, d, t_near, mi.Float(1.0, 2.0))
-    with pytest.raises(ValueError, match='n_coarse'):
-        volume_render(field, o, d, t_near, t_far, n_coarse=0)
+        volume_render(field, SamplerConfig().setup(), o, d, t_near, mi.Float(1.0, 2.0))
+    with pytest.raises(ValueError, match='cos_anneal_ratio'):
+        volume_render(field, SamplerConfig().setup(), o, d, t_near, t_far, cos_anneal_ratio=1.5)

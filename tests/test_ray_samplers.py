@@ -6,8 +6,8 @@ import drjit as dr
 import mitsuba as mi
 
 from reneus_mi.fields import SphereField
-from reneus_mi.sampler import (composite, importance_samples, merge_ranks, merge_sorted,
-                               neus_alpha, sample_segments, stratified_samples)
+from reneus_mi.ray_samplers import (SamplerConfig, composite, importance_samples, merge_ranks, merge_sorted,
+                                    neus_alpha, stratified_samples)
 
 
 def _sigmoid(x):
@@ -87,8 +87,8 @@ def test_upsampling_concentrates_samples_at_surface():
     d = mi.Vector3f(1.0, 0.0, 0.0) + mi.Vector3f(dr.zeros(mi.Float, n_rays))
     t_near, t_far = dr.full(mi.Float, 1.0, n_rays), dr.full(mi.Float, 3.0, n_rays)
     n_coarse = 16
-    t_coarse, n_c = sample_segments(field, o, d, t_near, t_far, n_coarse=n_coarse, n_fine=0)
-    t, n = sample_segments(field, o, d, t_near, t_far, n_coarse=n_coarse, n_fine=32, n_upsample_steps=4)
+    t_coarse, n_c = SamplerConfig(n_coarse=n_coarse, n_fine=0).setup().sample(field, o, d, t_near, t_far)
+    t, n = SamplerConfig(n_coarse=n_coarse, n_fine=32, n_upsample_steps=4).setup().sample(field, o, d, t_near, t_far)
     assert (n_c, n) == (n_coarse + 2, n_coarse + 34)
     t = np.asarray(t).reshape(n_rays, n)
     assert np.all(np.diff(t, axis=1) >= 0)

@@ -10,18 +10,30 @@ samples, then a few rounds that add samples by inverse-CDF sampling of the NeuS
 weights computed with a fixed, growing sharpness, so that the samples gather
 around the zero level set before the learned sharpness s is sharp enough to find
 it. Sampling is not differentiated: gradients reach the field through the
-rendered values at these positions (:mod:`reneus_mi.renderer`), never through
-the positions themselves.
+rendered values at these positions (:mod:`reneus_mi.volume_rendering`), never
+through the positions themselves.
 
 Unlike NeuS, the sample set of a segment also holds ``t_near`` and ``t_far``, so
 the sections between consecutive values tile the segment exactly and the
 transmittance across it is the true residual that the integrator needs to
 composite what lies beyond ``t_far``.
+
+The sampler is a configured object, as nerfstudio's ray samplers:
+:class:`SamplerConfig` holds the settings (each default written here only),
+``SamplerConfig(...).setup()`` builds the :class:`NeuSSampler` that the
+integrator owns. With ``occupancy_resolution > 0`` it keeps an
+:class:`reneus_mi.occupancy.OccupancyGrid` of the field: segments are clipped to
+the cells where the surface can be, and segments that cross none are skipped.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
+
+from reneus_mi.errors import ReneusError, check_numbers
+from reneus_mi.occupancy import OccupancyGrid
 
 #: Added to Φ_s in the α ratio, as in NeuS: it keeps α finite where Φ_s(prev) → 0.
 ALPHA_EPS = 1e-5
@@ -205,31 +217,126 @@ def _sdf_along(field, o: mi.Point3f, d: mi.Vector3f, t: mi.Float, n: int) -> mi.
     return sdf
 
 
-def sample_segments(field, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float, t_far: mi.Float, *,
-                    n_coarse: int = 64, n_fine: int = 64, n_upsample_steps: int = 4,
-                    upsample_s: float = 64.0, jitter: mi.Float | None = None) -> tuple[mi.Float, int]:
-    """NeuS's hierarchical sampling of each segment; returns ``(t, S)``.
+@dataclass
+class SamplerConfig:
+    """How each inside segment is sampled (NeuS's hierarchical sampling, optionally an occupancy grid)."""
 
-    ``t`` holds S = n_coarse + n_fine + 2 sorted values per segment, the first
-    ``t_near`` and the last ``t_far``; it carries no gradient. Round k of the
-    ``n_upsample_steps`` rounds adds ``n_fine / n_upsample_steps`` values drawn from
-    the NeuS weights at sharpness ``upsample_s * 2**k``. The SDF is evaluated only
-    at the new values of each round and merged along with them.
+    n_coarse: int = 64
+    """Coarse (stratified) samples per inside segment."""
+    n_fine: int = 64
+    """Importance samples per inside segment, added in ``n_upsample_steps`` rounds as in NeuS."""
+    n_upsample_steps: int = 4
+    """Rounds of NeuS's hierarchical up-sampling; must divide ``n_fine``."""
+    upsample_s: float = 64.0
+    """Fixed sharpness s of the first up-sampling round, doubled each round."""
+    occupancy_resolution: int = 0
+    """Cells per axis of the occupancy grid over the field's cube [-bound, bound]^3 (0: no grid).
+    With a grid, segments are clipped to the cells where the surface can be and empty ones are
+    skipped; 64 suits most objects."""
+    occupancy_lipschitz: float = 2.0
+    """Safety factor on the SDF's Lipschitz constant (|∇g| <= it): a cell is occupied when
+    g(centre) <= factor x half the cell's diagonal + margin + the NeuS density band. 1 suffices for
+    a true distance; a field in training is only near one."""
+    occupancy_margin: float = 0.01
+    """Extra distance (field units) by which a cell's centre SDF may exceed the Lipschitz bound and
+    still count as occupied, for a grid a few steps stale. (The undershoot of NeuS's linearised
+    section ends, factor x half the longest coarse section, is added to it.)"""
+    occupancy_update_every: int = 16
+    """Training steps between refreshes of the grid from the changing SDF (``NeuSSampler.update``)."""
+
+    def __post_init__(self):
+        check_numbers(self, positive=('n_coarse', 'n_upsample_steps', 'upsample_s', 'occupancy_lipschitz',
+                                      'occupancy_update_every'),
+                      at_least_zero=('n_fine', 'occupancy_resolution', 'occupancy_margin'))
+        if self.n_fine % self.n_upsample_steps:
+            raise ReneusError(f'sampling: n_fine={self.n_fine} is not a multiple of '
+                              f'n_upsample_steps={self.n_upsample_steps}')
+
+    def setup(self) -> 'NeuSSampler':
+        return NeuSSampler(self)
+
+
+@dataclass
+class Segments:
+    """The segments left to sample once the occupancy grid has clipped them."""
+
+    index: mi.UInt32 | None
+    """Which of the given segments cross an occupied cell (None: all of them, no grid)."""
+    t_near: mi.Float
+    """Start of each kept segment, moved up to its first occupied cell."""
+    t_far: mi.Float
+    """End of each kept segment, moved back to the end of its last occupied cell."""
+
+
+class NeuSSampler:
+    """NeuS's hierarchical sampler of ray segments, with an optional occupancy grid.
+
+    One per integrator (``SamplerConfig(...).setup()``). The grid belongs to one
+    field: it is built on first use, rebuilt when a different field comes, and
+    refreshed by :meth:`update` as training changes the SDF.
     """
-    with dr.suspend_grad():
-        o, d = dr.detach(o), dr.detach(d)
-        t = stratified_samples(dr.detach(t_near), dr.detach(t_far), n_coarse,
-                               None if jitter is None else dr.detach(jitter), include_ends=True)
-        n = n_coarse + 2
-        sdf = _sdf_along(field, o, d, t, n)
-        n_step = n_fine // n_upsample_steps if n_fine > 0 else 0
-        for k in range(n_upsample_steps if n_step > 0 else 0):
-            w = upsample_weights(o, d, t, sdf, n, upsample_s * 2.0 ** k, field.bound)
-            t_new = importance_samples(t, w, n, n_step)
-            sdf_new = _sdf_along(field, o, d, t_new, n_step)
 
-            ranks = merge_ranks(t, n, t_new, n_step)
-            t, sdf = scatter_merged(*ranks, t, t_new), scatter_merged(*ranks, sdf, sdf_new)
-            n += n_step
-            dr.eval(t, sdf)
-    return t, n
+    def __init__(self, config: SamplerConfig):
+        self.config = config
+        self.grid: OccupancyGrid | None = None
+        self._grid_field = None
+
+    def update(self, field, step: int) -> None:
+        """Refresh the occupancy grid from ``field`` every ``occupancy_update_every`` steps (else nothing)."""
+        if self.config.occupancy_resolution and step % self.config.occupancy_update_every == 0:
+            self._build(field)
+
+    def _build(self, field) -> None:
+        cfg = self.config
+        # A coarse section is at most 2 bound / n_coarse long: NeuS's end values
+        # g ± cos·Δ/2 undershoot g by up to L·Δ/2, which the margin must cover.
+        slack = cfg.occupancy_lipschitz * field.bound / cfg.n_coarse
+        self.grid = OccupancyGrid(cfg.occupancy_resolution, field.bound, lipschitz=cfg.occupancy_lipschitz,
+                                  margin=cfg.occupancy_margin + slack)
+        self.grid.update(field)
+        self._grid_field = field
+
+    def clip(self, field, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float, t_far: mi.Float) -> Segments:
+        """Clip each segment to the span of occupied cells it crosses; drop those that cross none.
+
+        Without a grid every segment is kept as it is (``index`` None).
+        """
+        if not self.config.occupancy_resolution:
+            return Segments(None, t_near, t_far)
+        if self._grid_field is not field:
+            self._build(field)
+        with dr.suspend_grad():
+            first, last = self.grid.span(dr.detach(o), dr.detach(d), dr.detach(t_near), dr.detach(t_far))
+            index = dr.compress(first < last)
+            return Segments(index, dr.gather(mi.Float, first, index), dr.gather(mi.Float, last, index))
+
+    def sample(self, field, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float, t_far: mi.Float,
+               jitter: mi.Float | None = None) -> tuple[mi.Float, int]:
+        """NeuS's hierarchical sampling of each segment; returns ``(t, S)``.
+
+        ``t`` holds S = n_coarse + n_fine + 2 sorted values per segment, the first
+        ``t_near`` and the last ``t_far``; it carries no gradient. ``jitter`` (one
+        value in [0, 1) per segment, None for the stratum midpoints) offsets the
+        coarse samples. Round k of the ``n_upsample_steps`` rounds adds
+        ``n_fine / n_upsample_steps`` values drawn from the NeuS weights at
+        sharpness ``upsample_s * 2**k``. The SDF is evaluated only at the new
+        values of each round and merged along with them.
+        """
+        cfg = self.config
+        with dr.suspend_grad():
+            o, d = dr.detach(o), dr.detach(d)
+            t = stratified_samples(dr.detach(t_near), dr.detach(t_far), cfg.n_coarse,
+                                   None if jitter is None else dr.detach(jitter), include_ends=True)
+            n = cfg.n_coarse + 2
+            sdf = _sdf_along(field, o, d, t, n)
+            n_step = cfg.n_fine // cfg.n_upsample_steps
+            for k in range(cfg.n_upsample_steps if n_step > 0 else 0):
+                w = upsample_weights(o, d, t, sdf, n, cfg.upsample_s * 2.0 ** k, field.bound)
+                t_new = importance_samples(t, w, n, n_step)
+                sdf_new = _sdf_along(field, o, d, t_new, n_step)
+
+                ranks = merge_ranks(t, n, t_new, n_step)
+                t, sdf = scatter_merged(*ranks, t, t_new), scatter_merged(*ranks, sdf, sdf_new)
+                n += n_step
+                dr.eval(t, sdf)
+        return t, n
