@@ -1,12 +1,23 @@
-"""Turning exceptions from inside Mitsuba/Dr.Jit into one readable message.
+"""The library's one exception type, and turning Mitsuba's wrapped errors into one line.
+
+Library code raises :class:`ReneusError` (a ``ValueError``, so callers that
+catch ``ValueError`` keep working) with a message that names the file, field
+or value and what was expected. Only a command's ``main()`` turns it into
+``error: ...`` on stderr and a non-zero exit status (:func:`exit_on_error`).
 
 Errors of the plugins surface wrapped: ``mi.load_file`` puts the XML location
 first and a Python traceback before the plugin's message; ``mi.render`` raises
 "error while performing a custom differentiable operation" with the plugin's
-error as its cause. Command-line tools print :func:`user_message` instead of a
-traceback.
+error as its cause. :func:`user_message` digs the plugin's message out.
 """
 from __future__ import annotations
+
+import contextlib
+import sys
+
+
+class ReneusError(ValueError):
+    """Bad input or a state the library cannot go on from; the message says which and why."""
 
 
 def root_cause(e: BaseException) -> BaseException:
@@ -19,12 +30,38 @@ def root_cause(e: BaseException) -> BaseException:
 
 
 def user_message(e: BaseException) -> str:
-    """The message a user needs: where (if Mitsuba said) and what."""
+    """The message a user needs, on one line: where (if Mitsuba said) and what."""
     e = root_cause(e)
-    lines = [line for line in str(e).strip().splitlines() if line.strip()]
+    lines = [line.strip() for line in str(e).strip().splitlines() if line.strip()]
     if not lines:
         return repr(e)
     if len(lines) <= 2:
-        return '\n'.join(lines)
+        return ': '.join(lines)
     where = lines[0].split(' Traceback (most recent call last):')[0]
-    return f'{where}\n  {lines[-1].strip()}'
+    return f'{where}: {lines[-1]}'
+
+
+def one_line(text: str) -> str:
+    """``text`` with its line breaks folded, so that a message is one line of stderr."""
+    return ' '.join(part.strip() for part in str(text).splitlines() if part.strip())
+
+
+@contextlib.contextmanager
+def exit_on_error(*extra: type[BaseException]):
+    """In a ``main()``: print a library error (and ``extra`` types) as one line and exit 1.
+
+    ``OSError`` (a full disk, a permission denied while writing) is an
+    ordinary failure of the machine, reported the same way.
+    """
+    try:
+        yield
+    except (ValueError, OSError, *extra) as e:
+        print(f'error: {one_line(user_message(e) if isinstance(e, RuntimeError) else _os_text(e))}',
+              file=sys.stderr)
+        raise SystemExit(1) from None
+
+
+def _os_text(e: BaseException) -> str:
+    if isinstance(e, OSError) and e.filename:
+        return f'{e.filename}: {e.strerror or e}'
+    return str(e)
