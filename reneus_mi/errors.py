@@ -13,7 +13,6 @@ error as its cause. :func:`user_message` digs the plugin's message out.
 from __future__ import annotations
 
 import contextlib
-import sys
 
 
 class ReneusError(ValueError):
@@ -48,17 +47,17 @@ def one_line(text: str) -> str:
 
 @contextlib.contextmanager
 def exit_on_error(*extra: type[BaseException]):
-    """In a ``main()``: print a library error (and ``extra`` types) as one line and exit 1.
+    """In a ``main()``: end with ``error: ...`` (one line on stderr, exit status 1).
 
-    ``OSError`` (a full disk, a permission denied while writing) is an
-    ordinary failure of the machine, reported the same way.
+    Catches library errors (``ValueError``, so :class:`ReneusError`),
+    ``OSError`` (a full disk, a permission denied: ordinary failures of the
+    machine) and the ``extra`` types (e.g. ``RuntimeError`` from Mitsuba).
     """
     try:
         yield
     except (ValueError, OSError, *extra) as e:
-        print(f'error: {one_line(user_message(e) if isinstance(e, RuntimeError) else _os_text(e))}',
-              file=sys.stderr)
-        raise SystemExit(1) from None
+        text = user_message(e) if isinstance(e, RuntimeError) else _os_text(e)
+        raise SystemExit(f'error: {one_line(text)}') from None
 
 
 def _os_text(e: BaseException) -> str:

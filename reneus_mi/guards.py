@@ -128,6 +128,59 @@ def check_output_dir(path: str | os.PathLike, *, inputs=(), allow: tuple[str, ..
     return real
 
 
+#: Names a run folder holds (see :mod:`reneus_mi.trainer`); ``data`` is the demo's dataset.
+RUN_FILES = ('config.json', 'log.jsonl', 'checkpoint.npz', 'mesh.ply', 'images', 'meshes', 'data',
+             '.lock')
+
+
+def check_run_dir(path: str | os.PathLike, *, inputs=(), resume: bool = False) -> str:
+    """Check a reconstruction's output folder; return its absolute path.
+
+    Apart from the inputs and any dataset folder (:func:`check_output_dir`);
+    a new run needs a new or empty folder, or one holding only what a run
+    writes (a run killed before its first checkpoint, which starts over);
+    ``resume`` accepts whatever the run folder holds.
+    """
+    from reneus_mi.io import is_temporary
+    real = _real(path)
+    present = os.listdir(real) if os.path.isdir(real) else []
+    allow = present if resume else [n for n in present
+                                    if (n in RUN_FILES and n != 'checkpoint.npz') or is_temporary(n)]
+    return check_output_dir(path, inputs=inputs, allow=allow, what='output folder')
+
+
+def check_batch(batch_rays: int, integrator, what: str = '--batch-rays') -> None:
+    """Refuse a ray batch whose samples exceed 32-bit indices or the machine's memory.
+
+    Reads the sampling (``n_coarse``, ``n_fine``, ``max_depth``) and the
+    field's size (``field.config()``) from the ``reneus`` integrator.
+    """
+    samples = getattr(integrator, 'n_coarse', 0) + getattr(integrator, 'n_fine', 0)
+    segments = getattr(integrator, 'max_depth', 0) + 1
+    field = getattr(integrator, 'field', None)
+    config = field.config() if hasattr(field, 'config') else {}
+    width = max(config.get('hidden', 1), config.get('color_hidden', 1))
+    layers = config.get('layers', 0) + config.get('color_layers', 0) + 2
+    label = f'{what} {batch_rays} ({samples} samples per segment, {segments} segments)'
+    check_index_range(batch_rays * max(samples, 1) * segments, label)
+    check_memory(training_bytes(batch_rays, max(samples, 1), segments, width, layers), label)
+
+
+def load_json(path: str | os.PathLike, what: str = 'file') -> dict:
+    """A JSON object from ``path``, or one line naming the file and the fault."""
+    path = os.fspath(path)
+    try:
+        with open(path) as f:
+            data = json.load(f)
+    except OSError as e:
+        raise ReneusError(f'{path}: cannot read the {what} ({e.strerror})') from None
+    except ValueError as e:
+        raise ReneusError(f'{path}: {what} is not valid JSON ({e})') from None
+    if not isinstance(data, dict):
+        raise ReneusError(f'{path}: {what}: expected a JSON object')
+    return data
+
+
 def physical_memory() -> int:
     """Bytes of physical memory of this machine."""
     return os.sysconf('SC_PHYS_PAGES') * os.sysconf('SC_PAGE_SIZE')
@@ -156,15 +209,55 @@ def check_index_range(count: int, what: str) -> None:
                           f'limit {MAX_INDEX}; expected a smaller value')
 
 
-#: Bytes per sample along a ray while training: positions, directions, the
-#: field's activations kept for the backward pass (width x layers x float32,
-#: twice for their gradients) and the colours and weights; estimated on the
-#: CPU (a 1024-ray batch of the demo field) with a margin of 2.
 def training_bytes(batch_rays: int, samples_per_segment: int, segments: int, width: int,
                    layers: int) -> int:
-    """Rough peak memory of one training step (see the comment above)."""
-    per_sample = 4 * (16 + 2 * width * (layers + 2))
-    return 2 * batch_rays * samples_per_segment * segments * per_sample
+    """A lower bound of the memory of one training step.
+
+    Every sample of every ray segment keeps its position, direction, colour
+    and weights (16 floats) and the activations of the field's layers for the
+    backward pass (``width`` x ``layers`` floats); float32 throughout. It is a
+    floor, not a forecast: a batch above it cannot fit, one below it may still
+    be too large.
+    """
+    per_sample = 4 * (16 + width * layers)
+    return batch_rays * samples_per_segment * segments * per_sample
+
+
+def check_keys(given: dict, allowed, where: str) -> None:
+    """Refuse keys of ``given`` (a stored configuration) that are not in ``allowed``."""
+    unknown = sorted(set(given) - set(allowed))
+    if unknown:
+        raise ReneusError(f"{where}: unknown key(s) {', '.join(map(repr, unknown))}; expected "
+                          f"some of {', '.join(sorted(allowed))}")
+
+
+def dataset_fingerprint(ds) -> dict:
+    """What identifies a dataset's views: their number, size, names and camera centres.
+
+    Stored with a run, it lets ``--resume --data MOVED`` check that the moved
+    folder holds the same photographs and cameras.
+    """
+    return {'views': len(ds), 'width': ds.width, 'height': ds.height, 'names': list(ds.names),
+            'centres': [[round(float(x), 5) for x in c] for c in ds.c2w[:, :3, 3]]}
+
+
+def check_same_dataset(saved: dict, ds, where: str) -> None:
+    """Refuse ``ds`` unless it matches the fingerprint ``saved`` of a run's dataset."""
+    now = dataset_fingerprint(ds)
+    for key in ('views', 'width', 'height', 'names'):
+        if saved.get(key) != now[key]:
+            raise ReneusError(f'{where}: dataset {ds.root} differs from the run\'s ({key}: '
+                              f'{_short(now[key])}, the run had {_short(saved.get(key))}); '
+                              'expected the same photographs')
+    import numpy as np
+    if not np.allclose(saved['centres'], now['centres'], atol=1e-4):
+        raise ReneusError(f"{where}: dataset {ds.root} has other camera positions than the run's; "
+                          'expected the same cameras')
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + '...'
 
 
 class RunLock:
@@ -235,19 +328,10 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def repair_log(path: str | os.PathLike, iteration: int) -> list[dict]:
-    """Keep the log lines of steps ``1..iteration`` (a checkpoint's); return them.
-
-    Lines after the checkpoint (a resumed run redoes those steps) and a torn
-    last line (a kill mid-write) are dropped. A torn line elsewhere, or a
-    missing step before ``iteration``, is an error that names the step.
-    """
-    from reneus_mi.io import atomic_write_text
+def read_log(path: str | os.PathLike) -> list[dict]:
+    """The entries of a run's ``log.jsonl``; a torn last line (a kill mid-write) is skipped."""
     path = os.fspath(path)
     if not os.path.isfile(path):
-        if iteration > 0:
-            raise ReneusError(f'{path}: log is missing, but the checkpoint is at step {iteration}; '
-                              'expected one log line per step')
         return []
     with open(path) as f:
         lines = [line for line in f.read().split('\n') if line.strip()]
@@ -255,22 +339,40 @@ def repair_log(path: str | os.PathLike, iteration: int) -> list[dict]:
     for n, line in enumerate(lines):
         try:
             entry = json.loads(line)
-            step = int(entry['iteration'])
+            int(entry['iteration'])
         except (ValueError, KeyError, TypeError):
             if n == len(lines) - 1:
-                break  # torn by a kill while writing
+                break
             raise ReneusError(f'{path}: line {n + 1} is not a log entry ({line[:40]!r}); '
                               "expected JSON with an 'iteration'") from None
-        if step <= iteration:
-            entries.append(entry)
-    steps = [e['iteration'] for e in entries]
-    if steps != list(range(1, iteration + 1)):
-        missing = sorted(set(range(1, iteration + 1)) - set(steps))
-        raise ReneusError(f'{path}: log lacks steps {missing[:5]}{" ..." if len(missing) > 5 else ""}'
-                          f' (or repeats some) before the checkpoint step {iteration}; '
-                          'expected one line per step')
-    atomic_write_text(path, ''.join(json.dumps(e) + '\n' for e in entries))
+        entries.append(entry)
     return entries
+
+
+def repair_log(path: str | os.PathLike, iteration: int) -> list[dict]:
+    """Keep the log lines of steps up to ``iteration`` (a checkpoint's); return them.
+
+    Lines after the checkpoint (a resumed run redoes those steps) and a torn
+    last line are dropped. Missing steps before ``iteration`` are reported
+    with a warning: the run itself is whole, its record is not.
+    """
+    import warnings
+    from reneus_mi.io import atomic_write_text
+    path = os.fspath(path)
+    entries = [e for e in read_log(path) if int(e['iteration']) <= iteration]
+    missing = sorted(set(range(1, iteration + 1)) - {int(e['iteration']) for e in entries})
+    if missing:
+        warnings.warn(f'{path}: no log line for {len(missing)} of the {iteration} steps before the '
+                      f'checkpoint (first: {missing[:3]}); the run goes on, its log has gaps')
+    if os.path.isfile(path):
+        atomic_write_text(path, ''.join(json.dumps(e) + '\n' for e in entries))
+    return entries
+
+
+def recent_psnr(entries: list[dict], n: int = 100) -> float | None:
+    """Mean PSNR of the last ``n`` log entries, None when there are none."""
+    values = [e['psnr'] for e in entries[-n:] if isinstance(e.get('psnr'), (int, float))]
+    return sum(values) / len(values) if values else None
 
 
 def check_npz_file(path: str | os.PathLike, what: str = 'checkpoint', keys=('meta',)) -> None:

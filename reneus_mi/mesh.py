@@ -33,6 +33,10 @@ MESH_EXTENSIONS = ('.ply', '.obj', '.stl', '.off')
 _RAY_DIRECTIONS = ((0.5366, 0.6104, 0.5826), (-0.7213, 0.2871, 0.6303), (0.1947, -0.8626, 0.4668))
 
 
+class NoSurfaceError(ReneusError):
+    """The field has no zero level set in the box: there is no mesh (yet)."""
+
+
 def _triple(value, name: str) -> np.ndarray:
     arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,))
     if not np.all(np.isfinite(arr)):
@@ -96,7 +100,7 @@ def extract_mesh(field: Field, lo, hi, resolution=256, *, to_world=None) -> trim
                          f'{int(np.sum(~np.isfinite(grid)))} grid points')
     g_min, g_max = float(grid.min()), float(grid.max())
     if not g_min < 0.0 < g_max:
-        raise ValueError(f'{type(field).__name__} has no zero crossing in the box lo={lo.tolist()} '
+        raise NoSurfaceError(f'{type(field).__name__} has no zero crossing in the box lo={lo.tolist()} '
                          f'hi={hi.tolist()}: the SDF ranges over [{g_min:.4g}, {g_max:.4g}]')
     step = (hi - lo) / (np.asarray(grid.shape) - 1)
     # skimage's 'descent' winding puts the normals on the side where the

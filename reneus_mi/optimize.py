@@ -68,8 +68,7 @@ def load(scene_path: str, data: str | None):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog='python -m reneus_mi.optimize',
-                                     description=__doc__.split('\n\n')[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                     description=__doc__.split('\n\n')[0])
     parser.add_argument('scene', nargs='?', help='Mitsuba scene XML with <integrator type="reneus">')
     parser.add_argument('--data', help="dataset folder (overrides the integrator's 'dataset')")
     parser.add_argument('-o', '--output', help='output folder (default: runs/<scene name>)')
@@ -93,7 +92,11 @@ def run(args) -> str:
     from reneus_mi.errors import user_message
     from reneus_mi.trainer import Trainer, TrainingError
     from reneus_mi.io import atomic_write_text
+    from reneus_mi import guards
 
+    if args.scene is None and not (args.demo or args.resume):
+        raise ValueError('no scene given: expected SCENE.xml (python -m reneus_mi.scene DATA -o '
+                         'scene.xml writes one), or --demo for the embedded demo')
     demo = args.demo or args.scene is None
     base = TrainConfig(**DEMO_TRAIN) if demo else TrainConfig()
     out = args.output or os.path.join('runs', 'demo' if demo else
@@ -102,14 +105,20 @@ def run(args) -> str:
     if args.resume:
         if not os.path.isfile(config_path):
             raise ValueError(f'{out}: nothing to resume (no config.json)')
-        with open(config_path) as f:
-            saved = json.load(f)
+        saved = guards.load_json(config_path, 'run configuration')
+        guards.check_keys(saved.get('train', {}), [f.name for f in dataclasses.fields(TrainConfig)],
+                          f"{config_path}: 'train'")
         base = TrainConfig(**saved['train'])
-        scene_path, data = saved['scene'], saved['data']
+        scene_path, data = saved['scene'], args.data or saved['data']
+        if args.scene and os.path.abspath(args.scene) != scene_path:
+            raise ValueError(f'--resume continues the run of {scene_path}, but {args.scene} was '
+                             'given: expected no scene, or the same one')
+        guards.check_run_dir(out, inputs=[scene_path, data], resume=True)
     else:
         if os.path.isfile(os.path.join(out, 'checkpoint.npz')):
             raise ValueError(f'{out} already holds a run; continue it with --resume or choose '
                              'another --output')
+        guards.check_run_dir(out, inputs=[args.scene, args.data])
         scene_path = make_demo(os.path.join(out, 'data')) if demo else args.scene
         data = args.data
     cfg = cli.from_arguments(TrainConfig, args, base)
@@ -118,21 +127,31 @@ def run(args) -> str:
         scene, dataset = load(scene_path, data)
     except RuntimeError as e:
         raise ValueError(user_message(e)) from None
+    guards.check_run_dir(out, inputs=[scene_path, dataset.root], resume=True)
+    guards.check_batch(cfg.batch_rays, scene.integrator())
+    if args.resume and 'dataset' in saved:
+        guards.check_same_dataset(saved['dataset'], dataset, config_path)
     trainer = Trainer(scene, dataset, cfg, out)
     os.makedirs(out, exist_ok=True)
-    if args.resume:
-        trainer.resume()
-    atomic_write_text(config_path, json.dumps({
-        'train': dataclasses.asdict(cfg), 'scene': os.path.abspath(scene_path),
-        'data': os.path.abspath(dataset.root),
-        'integrator': scene.integrator().to_string()}, indent=2))
-    try:
-        result = trainer.run(progress=not args.quiet)
-    except TrainingError as e:
-        raise ValueError(str(e)) from None
+    with guards.RunLock(out):
+        guards.remove_stray_temporaries(out)
+        if args.resume:
+            guards.check_npz_file(trainer.checkpoint_path, 'checkpoint')
+            trainer.resume()
+        atomic_write_text(config_path, json.dumps({
+            'train': dataclasses.asdict(cfg), 'scene': os.path.abspath(scene_path),
+            'data': os.path.abspath(dataset.root), 'dataset': guards.dataset_fingerprint(dataset),
+            'integrator': scene.integrator().to_string()}, indent=2))
+        try:
+            result = trainer.run(progress=not args.quiet)
+        except TrainingError as e:
+            raise ValueError(str(e)) from None
+    psnr = result['psnr']
+    if psnr != psnr:  # no step ran (a finished run resumed): the log has the figure
+        psnr = guards.recent_psnr(guards.read_log(os.path.join(out, 'log.jsonl'))) or float('nan')
+    renders = f"; renders {os.path.join(out, 'images')}" if cfg.validate_every else ''
     lines = [f"done: {result['iterations']} iterations in {result['seconds']:.0f} s, "
-             f"PSNR {result['psnr']:.2f} dB (last 100 steps); mesh {result['mesh']}; "
-             f"renders {os.path.join(out, 'images')}"]
+             f"PSNR {psnr:.2f} dB (last 100 steps); mesh {result['mesh']}{renders}"]
     if dataset.gt_mesh:
         from reneus_mi.evaluate import chamfer, load_mesh
         c = chamfer(load_mesh(result['mesh']), load_mesh(dataset.gt_mesh))

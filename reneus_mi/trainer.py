@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import warnings
 from dataclasses import dataclass
 
 import drjit as dr
@@ -24,12 +25,12 @@ import mitsuba as mi
 import numpy as np
 from drjit.opt import GradScaler
 
-from reneus_mi import checkpoint, losses
+from reneus_mi import checkpoint, guards, losses
 from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
 from reneus_mi.fields import load_field
 from reneus_mi.extract import field_mesh, write_mesh
-from reneus_mi.io import atomic_write_text
+from reneus_mi.mesh import NoSurfaceError
 from reneus_mi.variant import is_cuda
 from reneus_mi.render import write_image
 
@@ -105,7 +106,7 @@ class Trainer:
         self.iteration = meta['iteration']
         self.rng.bit_generator.state = meta['rng']
         self.best_loss = meta['best_loss']
-        _truncate_log(os.path.join(self.out, 'log.jsonl'), self.iteration)
+        guards.repair_log(os.path.join(self.out, 'log.jsonl'), self.iteration)
 
     # ------------------------------------------------------------- training
     def batch(self):
@@ -124,6 +125,15 @@ class Trainer:
         """One optimisation step; raises TrainingError before a bad update is applied."""
         cfg, it = self.cfg, self.iteration
         start = time.perf_counter()
+        # An interrupted step must leave the batch stream where the checkpoint expects it.
+        rng_state = self.rng.bit_generator.state
+        try:
+            return self._step(cfg, it, start)
+        except BaseException:
+            self.rng.bit_generator.state = rng_state
+            raise
+
+    def _step(self, cfg, it, start) -> StepStats:
         ray, target, jitter = self.batch()
         self.field.set_params(self.opt)
         result = self.integrator.trace(self.scene, ray, jitter=jitter,
@@ -193,7 +203,10 @@ class Trainer:
         os.makedirs(os.path.join(self.out, 'images'), exist_ok=True)
         write_image(both, os.path.join(self.out, 'images', f'{self.iteration:06d}.png'))
         write_image(normals * 0.5 + 0.5, os.path.join(self.out, 'images', f'{self.iteration:06d}_normal.png'))
-        self.write_mesh(os.path.join(self.out, 'meshes', f'{self.iteration:06d}.ply'), resolution=64)
+        try:
+            self.write_mesh(os.path.join(self.out, 'meshes', f'{self.iteration:06d}.ply'), resolution=64)
+        except NoSurfaceError as e:
+            warnings.warn(f'step {self.iteration}: no mesh snapshot ({e}); training goes on')
 
     @property
     def frame(self) -> dict:
@@ -243,7 +256,12 @@ class Trainer:
         bar.close()
         self.save_checkpoint()
         mesh_path = os.path.join(self.out, 'mesh.ply')
-        self.write_mesh(mesh_path)
+        try:
+            self.write_mesh(mesh_path)
+        except NoSurfaceError as e:
+            raise TrainingError(f'{e}: no surface yet after {self.iteration} steps; the checkpoint '
+                                f'{self.checkpoint_path} is saved: continue with --resume and more '
+                                '--iterations') from None
         return {'iterations': self.iteration, 'seconds': time.perf_counter() - start,
                 'psnr': float(np.mean(psnrs)) if psnrs else float('nan'), 'mesh': mesh_path}
 
@@ -252,11 +270,3 @@ def _ray(o: np.ndarray, d: np.ndarray) -> mi.Ray3f:
     o, d = o.astype(np.float32), d.astype(np.float32)
     return mi.Ray3f(mi.Point3f(*o.T), mi.Vector3f(*d.T))
 
-
-def _truncate_log(path: str, iteration: int) -> None:
-    """Drop log lines of steps after ``iteration``: a resumed run redoes them."""
-    if not os.path.isfile(path):
-        return
-    with open(path) as f:
-        kept = [line for line in f if line.strip() and json.loads(line)['iteration'] <= iteration]
-    atomic_write_text(path, ''.join(kept))

@@ -8,6 +8,7 @@ import pytest
 import trimesh
 
 from reneus_mi.data import Dataset, write_dataset
+from reneus_mi.data.container import container_masks
 from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.scene import main, sensor_dict, write_scene
 
@@ -19,9 +20,11 @@ def make_dataset(folder, ior=1.5) -> Dataset:
     mesh = os.path.join(folder, 'meshes', 'box.ply')
     os.makedirs(os.path.dirname(mesh), exist_ok=True)
     trimesh.creation.box(extents=(1.0, 0.8, 0.6)).apply_translation((0.2, -0.1, 0.05)).export(mesh)
-    return Dataset(images=np.full((1, H, W, 3), 0.5, np.float32), masks=np.ones((1, H, W), bool),
-                   K=intrinsics(15.0, 15.0, 9.25, 4.5)[None],
-                   c2w=look_at((2.5, -1.5, 1.2), target=(0.1, 0.0, 0.1))[None],
+    K = intrinsics(15.0, 15.0, 9.25, 4.5)[None]
+    c2w = look_at((2.5, -1.5, 1.2), target=(0.1, 0.0, 0.1))[None]
+    # The loader checks masks against the container's projection.
+    return Dataset(images=np.full((1, H, W, 3), 0.5, np.float32),
+                   masks=container_masks(mesh, K, c2w, H, W), K=K, c2w=c2w,
                    names=['a.png'], root=str(folder), container=mesh, ior=ior)
 
 
@@ -114,5 +117,5 @@ def test_cli(tmp_path, capsys):
 
     with pytest.raises(SystemExit) as exit_info:
         main([str(tmp_path / 'absent'), '-o', str(tmp_path / 'other.xml')])
-    assert exit_info.value.code == 2 and 'dataset folder is missing' in capsys.readouterr().err
+    assert str(exit_info.value.code).startswith('error: ') and 'dataset folder is missing' in str(exit_info.value.code)
     assert not (tmp_path / 'other.xml').exists()
