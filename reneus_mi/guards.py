@@ -65,6 +65,10 @@ def _check_writable(path: str, what: str) -> None:
 
 
 def _check_not_input(path: str, what: str, inputs) -> None:
+    data = _data_folders(path)
+    if data:
+        raise ReneusError(f'{what} {path}: lies in the dataset folder {data[-1]}; '
+                          'expected a place outside any folder of photographs')
     for given in inputs or ():
         if given is None:
             continue
@@ -75,10 +79,6 @@ def _check_not_input(path: str, what: str, inputs) -> None:
         if os.path.isdir(src) and _within(src, path):
             raise ReneusError(f'{what} {path}: contains the input {given}; '
                               'expected a place apart from the input data')
-    data = _data_folders(path)
-    if data:
-        raise ReneusError(f'{what} {path}: lies in the dataset folder {data[-1]}; '
-                          'expected a place outside any folder of photographs')
 
 
 def check_output_file(path: str | os.PathLike, *, inputs=(), overwrite: bool = False,
@@ -91,11 +91,11 @@ def check_output_file(path: str | os.PathLike, *, inputs=(), overwrite: bool = F
     place that is not writable.
     """
     real = _real(path)
+    _check_not_input(real, what, inputs)
     if extensions and os.path.splitext(real)[1].lower() not in extensions:
         raise ReneusError(f"{what} {path}: expected a file ending in {' or '.join(extensions)}")
     if os.path.isdir(real):
         raise ReneusError(f'{what} {path}: is a folder, expected a file name')
-    _check_not_input(real, what, inputs)
     if os.path.exists(real) and not overwrite:
         raise ReneusError(f'{what} {path}: exists; expected a new file name '
                           '(or --overwrite to replace it)')

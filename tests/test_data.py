@@ -208,8 +208,8 @@ def test_blender_errors(written, tmp_path):
 def test_neus_errors(written, tmp_path):
     folder = mutable(written, tmp_path, 'neus')
     os.rename(folder / 'image' / '002.png', tmp_path / '002.png')
-    with pytest.raises(ValueError, match=r"image: image numbers do not match the 3 cameras .* "
-                                         r"missing \[2\]"):
+    with pytest.raises(ValueError, match=r"image: has 2 images, but .*cameras_sphere.npz has 3 "
+                                         r"cameras; .* missing \[2\]"):
         load_dataset(str(folder))
     write_png(str(folder / 'image' / '002.png'), np.zeros((H, W + 2, 3)))
     with pytest.raises(ValueError, match=r"002.png: image is 18x12, but .*000.png is 16x12"):
@@ -220,7 +220,7 @@ def test_neus_errors(written, tmp_path):
                                          "16x12"):
         load_dataset(str(folder))
     os.remove(folder / 'mask' / '001.png')
-    with pytest.raises(ValueError, match=r"mask: image numbers do not match .* missing \[1\]"):
+    with pytest.raises(ValueError, match=r"mask: has 2 images, but .* missing \[1\]"):
         load_dataset(str(folder))
     shutil.copy(written[1] / 'neus' / 'mask' / '001.png', folder / 'mask')
 

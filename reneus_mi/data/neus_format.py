@@ -73,9 +73,9 @@ def view_files(folder: str, n: int, cameras: str) -> list[str]:
     if sorted(by_index) != list(range(n)):
         extra = sorted(set(by_index) - set(range(n)))
         missing = sorted(set(range(n)) - set(by_index))
-        raise ReneusError(f"{folder}: image numbers do not match the {n} cameras world_mat_0 ... "
-                          f"world_mat_{n - 1} of {cameras}: missing {missing[:5]}, "
-                          f"unexpected {extra[:5]}")
+        raise ReneusError(f"{folder}: has {len(by_index)} images, but {cameras} has {n} cameras; "
+                          f"expected the numbers 0 ... {n - 1} of world_mat_i in the file names: "
+                          f"missing {missing[:5]}, unexpected {extra[:5]}")
     return [by_index[i] for i in range(n)]
 
 
