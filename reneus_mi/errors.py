@@ -36,7 +36,7 @@ def user_message(e: BaseException) -> str:
         return repr(e)
     if len(lines) <= 2:
         return ': '.join(lines)
-    where = lines[0].split(' Traceback (most recent call last):')[0]
+    where = lines[0].split(' Traceback (most recent call last):')[0].rstrip(': ')
     return f'{where}: {lines[-1]}'
 
 

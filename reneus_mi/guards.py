@@ -54,8 +54,8 @@ def _data_folders(path: str) -> list[str]:
 
 
 def _check_writable(path: str, what: str) -> None:
-    """``path``'s nearest existing ancestor must be a folder we may write into."""
-    folder = path
+    """``path``'s nearest existing ancestor folder must be one we may write into."""
+    folder = os.path.dirname(path)
     while not os.path.exists(folder):
         folder = os.path.dirname(folder)
     if not os.path.isdir(folder):
@@ -124,7 +124,7 @@ def check_output_dir(path: str | os.PathLike, *, inputs=(), allow: tuple[str, ..
             raise ReneusError(f"{what} {path}: is not empty (holds {', '.join(foreign[:3])}"
                               f"{' ...' if len(foreign) > 3 else ''}); expected a new or empty "
                               'folder, so that no file is overwritten')
-    _check_writable(real, what)
+    _check_writable(os.path.join(real, '.'), what)
     return real
 
 

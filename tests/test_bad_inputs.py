@@ -580,3 +580,54 @@ def test_processes_exit_1_with_one_line(world, tmp_path):
     one_error_line(process('render', world['scene'], '-o', tmp_path / 'r.jpg'), '.exr or .png')
     assert snapshot(world['data'], world['run']) == before
     assert os.listdir(tmp_path) == []
+
+
+# ============================================ what a resumed run must survive
+def test_resume_finished_run_reports_the_logged_psnr(world, run_copy, capsys):
+    """No step is left: the summary takes the PSNR from the log, and names no images/."""
+    assert optimize.main(['-o', str(run_copy), '--resume', '--quiet']) == 0
+    out = capsys.readouterr().out
+    assert 'done: 2 iterations' in out and 'nan' not in out and 'renders' not in out
+    logged = [json.loads(line) for line in (run_copy / 'log.jsonl').read_text().splitlines()]
+    assert f"PSNR {np.mean([e['psnr'] for e in logged]):.2f} dB" in out
+
+
+def test_resume_drops_a_torn_log_line(world, run_copy):
+    with open(run_copy / 'log.jsonl', 'a') as f:
+        f.write('{"iteration": 3, "loss": 0.1')          # a kill mid-line
+    assert optimize.main(['-o', str(run_copy), '--resume', '--quiet', '--iterations', '3']) == 0
+    steps = [json.loads(line)['iteration'] for line in (run_copy / 'log.jsonl').read_text().splitlines()]
+    assert steps == [1, 2, 3]
+
+
+def test_resume_removes_a_stray_temporary(world, run_copy):
+    (run_copy / '.tmp-k1ll3d.npz').write_bytes(b'half a checkpoint')
+    assert optimize.main(['-o', str(run_copy), '--resume', '--quiet']) == 0
+    assert not (run_copy / '.tmp-k1ll3d.npz').exists() and not (run_copy / '.lock').exists()
+
+
+def test_interrupted_step_leaves_the_batch_stream_alone(world, tmp_path):
+    """Ctrl-C inside a step: the checkpoint must hold the generator as before that step."""
+    from test_checkpoint import new_trainer
+    trainer = new_trainer(world['scene'], tmp_path / 'out')
+    before = trainer.rng.bit_generator.state
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    trainer.integrator.trace = interrupted
+    with pytest.raises(KeyboardInterrupt):
+        trainer.step()
+    assert trainer.rng.bit_generator.state == before
+
+
+def test_validation_without_surface_goes_on(world, tmp_path, monkeypatch):
+    from reneus_mi.mesh import NoSurfaceError
+    from test_checkpoint import new_trainer
+    trainer = new_trainer(world['scene'], tmp_path / 'out')
+
+    def no_surface(*args, **kwargs):
+        raise NoSurfaceError('NeuSField has no zero crossing')
+    monkeypatch.setattr(trainer, 'write_mesh', no_surface)
+    with pytest.warns(UserWarning, match='no mesh snapshot .* training goes on'):
+        trainer.validate()
+    assert sorted(os.listdir(tmp_path / 'out' / 'images')) == ['000000.png', '000000_normal.png']
