@@ -359,13 +359,14 @@ def repair_log(path: str | os.PathLike, iteration: int) -> list[dict]:
     import warnings
     from reneus_mi.io import atomic_write_text
     path = os.fspath(path)
+    if not os.path.isfile(path):  # a trainer driven by hand keeps no log
+        return []
     entries = [e for e in read_log(path) if int(e['iteration']) <= iteration]
     missing = sorted(set(range(1, iteration + 1)) - {int(e['iteration']) for e in entries})
     if missing:
         warnings.warn(f'{path}: no log line for {len(missing)} of the {iteration} steps before the '
                       f'checkpoint (first: {missing[:3]}); the run goes on, its log has gaps')
-    if os.path.isfile(path):
-        atomic_write_text(path, ''.join(json.dumps(e) + '\n' for e in entries))
+    atomic_write_text(path, ''.join(json.dumps(e) + '\n' for e in entries))
     return entries
 
 

@@ -25,6 +25,7 @@ import os
 import numpy as np
 
 from reneus_mi.errors import ReneusError
+from reneus_mi.io import atomic_write_text
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
                                     has_skew, intrinsics)
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
@@ -145,5 +146,6 @@ def write(ds: Dataset, out_dir: str) -> None:
             frame.update(camera(ds.K[i]))
         frames.append(frame)
     meta['frames'] = frames
-    with open(os.path.join(out_dir, 'transforms.json'), 'w') as f:
-        json.dump(meta, f, indent=2, default=float)
+    # Written last and atomically: a folder with transforms.json is a whole dataset.
+    atomic_write_text(os.path.join(out_dir, 'transforms.json'),
+                      json.dumps(meta, indent=2, default=float))

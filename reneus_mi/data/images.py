@@ -12,6 +12,7 @@ import mitsuba as mi
 import numpy as np
 
 from reneus_mi.errors import ReneusError
+from reneus_mi.io import atomic_path
 
 #: File extensions tried, in this order, for a NeRF ``file_path`` without one.
 IMAGE_EXTENSIONS = ('.png', '.jpg', '.jpeg', '.exr', '.PNG', '.JPG', '.JPEG', '.EXR')
@@ -54,4 +55,5 @@ def write_png(path: str, image: np.ndarray) -> None:
     fmt = {1: mi.Bitmap.PixelFormat.Y, 3: mi.Bitmap.PixelFormat.RGB,
            4: mi.Bitmap.PixelFormat.RGBA}[image.shape[-1]]
     u8 = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
-    mi.Bitmap(u8, pixel_format=fmt).write(path)
+    with atomic_path(path) as tmp:
+        mi.Bitmap(u8, pixel_format=fmt).write(tmp)

@@ -34,6 +34,7 @@ import numpy as np
 from reneus_mi.data.cameras import compose_projection, decompose_projection
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
 from reneus_mi.errors import ReneusError
+from reneus_mi.io import atomic_savez, atomic_write_text
 from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, read_mask, write_png
 
 CAMERAS_FILE = 'cameras_sphere.npz'
@@ -167,8 +168,8 @@ def write(ds: Dataset, out_dir: str) -> None:
     for i in range(len(ds)):
         cams[f'world_mat_{i}'] = compose_projection(ds.K[i], ds.c2w[i])
         cams[f'scale_mat_{i}'] = scale_mat
-    np.savez(os.path.join(out_dir, CAMERAS_FILE), **cams)
     meta = write_extras(ds, out_dir)
     if meta:
-        with open(os.path.join(out_dir, META_FILE), 'w') as f:
-            json.dump(meta, f, indent=2)
+        atomic_write_text(os.path.join(out_dir, META_FILE), json.dumps(meta, indent=2))
+    # Written last and atomically: a folder with the camera file is a whole dataset.
+    atomic_savez(os.path.join(out_dir, CAMERAS_FILE), **cams)
