@@ -166,6 +166,24 @@ def check_batch(batch_rays: int, integrator, what: str = '--batch-rays') -> None
     check_memory(training_bytes(batch_rays, max(samples, 1), segments, width, layers), label)
 
 
+def check_field_reaches(center, scale: float, lo, hi, where: str) -> None:
+    """Refuse a field sphere (``center``, radius ``scale``) that misses the box ``[lo, hi]``.
+
+    The field lives in that sphere and the rays that matter run inside the
+    container: if the two do not meet, no ray reaches the field and training
+    has nothing to fit.
+    """
+    import numpy as np
+    c, lo, hi = (np.asarray(v, dtype=np.float64) for v in (center, lo, hi))
+    gap = float(np.linalg.norm(np.maximum(lo - c, 0.0) + np.maximum(c - hi, 0.0)))
+    if not scale > 0 or gap >= scale:
+        raise ReneusError(f'{where}: the field sphere (centre {np.round(c, 4).tolist()}, radius '
+                          f'{scale:.4g}) does not meet the container (bounds {np.round(lo, 4).tolist()}'
+                          f' .. {np.round(hi, 4).tolist()}), so no ray would reach the field; '
+                          'expected field_center/field_scale around the container (python -m '
+                          'reneus_mi.scene writes them)')
+
+
 def load_json(path: str | os.PathLike, what: str = 'file') -> dict:
     """A JSON object from ``path``, or one line naming the file and the fault."""
     path = os.fspath(path)

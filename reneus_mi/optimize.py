@@ -129,6 +129,9 @@ def run(args) -> str:
         raise ValueError(user_message(e)) from None
     guards.check_run_dir(out, inputs=[scene_path, dataset.root], resume=True)
     guards.check_batch(cfg.batch_rays, scene.integrator())
+    if scene.bbox().valid():
+        guards.check_field_reaches(scene.integrator().field_center, scene.integrator().field_scale,
+                                   scene.bbox().min, scene.bbox().max, scene_path)
     if args.resume and 'dataset' in saved:
         guards.check_same_dataset(saved['dataset'], dataset, config_path)
     trainer = Trainer(scene, dataset, cfg, out)

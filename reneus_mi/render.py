@@ -41,13 +41,15 @@ def load_scene(path: str) -> mi.Scene:
 
 
 def check_scene_containers(scene: mi.Scene, where: str) -> None:
-    """Every dielectric mesh of ``scene`` (a container) must be closed and face outward.
+    """Every dielectric mesh of ``scene`` (the container) must be closed, face outward,
+    and be made of parts that do not overlap.
 
     This is the geometry Mitsuba traces, after the scene's transforms and
-    ``flip_normals``: the check catches what the XML points to, whatever
-    file the dataset names.
+    ``flip_normals`` (and after Mitsuba merged shapes that share a BSDF): the
+    check catches what the XML points to, whatever file the dataset names.
     """
     import trimesh
+    parts = []
     for shape in scene.shapes():
         if not isinstance(shape, mi.Mesh) or not str(shape.bsdf()).startswith('SmoothDielectric'):
             continue
@@ -56,7 +58,38 @@ def check_scene_containers(scene: mi.Scene, where: str) -> None:
         if shape.has_flipped_normals():
             faces = faces[:, ::-1]
         mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
-        check_container(mesh, f"{where}: shape '{shape.id()}'")
+        check_container(mesh, f"{where}: shape '{shape.id() or 'container'}'")
+        merged = mesh.copy()
+        merged.merge_vertices()
+        parts += merged.split(only_watertight=False)
+    _check_disjoint(parts, where)
+
+
+def _check_disjoint(parts, where: str) -> None:
+    """Container parts may sit apart or one inside another as its cavity (inward
+    normals: a hollow vessel), never cut through each other or nest glass in glass,
+    where a ray would enter glass it is already in."""
+    from reneus_mi.mesh import inside, signed_volume
+    for i, a in enumerate(parts):
+        for b in parts[i + 1:]:
+            if not (np.all(a.bounds[0] <= b.bounds[1]) and np.all(b.bounds[0] <= a.bounds[1])):
+                continue
+            for inner, outer in ((a, b), (b, a)):
+                if signed_volume(outer.vertices, outer.faces) < 0:
+                    outer = outer.copy()   # parity is blind to orientation; inside() is not
+                    outer.invert()
+                within = inside(_probes(inner), outer)
+                cavity = signed_volume(inner.vertices, inner.faces) < 0
+                if within.any() and not (within.all() and cavity):
+                    c = np.round(0.5 * (inner.bounds[0] + inner.bounds[1]), 3).tolist()
+                    raise ReneusError(f'{where}: container parts overlap (the part centred at {c} '
+                                      'reaches into another); expected disjoint parts, or a cavity '
+                                      'with inward normals inside its part')
+
+
+def _probes(mesh) -> np.ndarray:
+    """Points of a mesh's surface that tell whether it reaches into another: vertices and face centres."""
+    return np.concatenate([mesh.vertices, mesh.triangles_center])
 
 
 def write_image(image: np.ndarray, path: str) -> None:

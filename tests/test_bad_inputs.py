@@ -631,3 +631,37 @@ def test_validation_without_surface_goes_on(world, tmp_path, monkeypatch):
     with pytest.warns(UserWarning, match='no mesh snapshot .* training goes on'):
         trainer.validate()
     assert sorted(os.listdir(tmp_path / 'out' / 'images')) == ['000000.png', '000000_normal.png']
+
+
+def test_optimize_field_sphere_away_from_the_container(world, tmp_path):
+    """No ray would reach the field: said before training, not by drjit.backward()."""
+    xml = tmp_path / 'scene.xml'
+    text = open(world['scene']).read()
+    start = text.index('<point name="field_center"')
+    end = text.index('/>', start) + 2
+    xml.write_text(text[:start] + '<point name="field_center" x="50" y="0" z="0"/>' + text[end:]
+                   .replace('value="box/', f'value="{world["data"]}/'))
+    refused(optimize.main, [xml, '-o', tmp_path / 'out', *TRAIN],
+            'the field sphere (centre [50.0, 0.0, 0.0]', 'no ray would reach the field',
+            watch=[tmp_path])
+
+
+def test_scene_with_overlapping_container_parts(world, tmp_path):
+    xml = tmp_path / 'scene.xml'
+    text = open(world['scene']).read().replace('value="box/', f'value="{world["data"]}/')
+    start = text.index('<shape')
+    end = text.index('</shape>', start) + len('</shape>')
+    shape = text[start:end]
+    moved = shape.replace('id="container"', 'id="second"').replace(
+        '</shape>', '<transform name="to_world"><translate x="0.1" y="0.1" z="0.1"/></transform></shape>')
+    xml.write_text(text[:end] + moved + text[end:])
+    refused(render.main, [xml, '-o', tmp_path / 'r.png'],
+            'container parts overlap', watch=[tmp_path])
+
+
+def test_optimize_help_states_each_default_once(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        optimize.main(['--help'])
+    assert exit_info.value.code == 0
+    text = ' '.join(capsys.readouterr().out.split())
+    assert text.count('(default: 3000)') == 1 and '(default: None)' not in text

@@ -119,3 +119,18 @@ def test_cli(tmp_path, capsys):
         main([str(tmp_path / 'absent'), '-o', str(tmp_path / 'other.xml')])
     assert str(exit_info.value.code).startswith('error: ') and 'dataset folder is missing' in str(exit_info.value.code)
     assert not (tmp_path / 'other.xml').exists()
+
+
+def test_container_parts_apart_or_hollow_pass_overlapping_fail():
+    import trimesh
+    from reneus_mi.render import _check_disjoint
+    outer = trimesh.creation.box(extents=(2, 2, 2))
+    apart = trimesh.creation.box().apply_translation((5, 0, 0))
+    cavity = trimesh.creation.box()
+    cavity.invert()
+    _check_disjoint([outer, apart], 'scene.xml')
+    _check_disjoint([outer, cavity], 'scene.xml')      # a hollow vessel
+    with pytest.raises(ValueError, match='scene.xml: container parts overlap'):
+        _check_disjoint([outer, trimesh.creation.box()], 'scene.xml')    # glass in glass
+    with pytest.raises(ValueError, match='container parts overlap'):
+        _check_disjoint([outer, trimesh.creation.box().apply_translation((0.8, 0.8, 0.8))], 's')
