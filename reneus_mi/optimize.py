@@ -7,9 +7,9 @@ cameras (``--data`` overrides it; ``python -m reneus_mi.scene DATA -o
 scene.xml`` writes such a scene). Results go to the output folder (see
 :mod:`reneus_mi.trainer`); ``--resume`` continues a killed run.
 
-Without a scene (or with ``--demo``) it reconstructs the embedded demo: a
-small dataset of a statuette in a glass block that it first renders with
-Mitsuba's path tracer.
+With ``--demo`` (and no scene) it reconstructs the embedded demo: a small
+dataset of a statuette in a glass block that it first renders with Mitsuba's
+path tracer.
 """
 from __future__ import annotations
 

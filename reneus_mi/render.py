@@ -23,8 +23,9 @@ from reneus_mi.mesh import check_container
 
 #: Image files :func:`write_image` writes.
 IMAGE_EXTENSIONS = ('.exr', '.png')
-#: Bytes per sample of a render in flight (ray, interaction, colour and the
-#: integrator's per-lane state; measured order of magnitude, with a margin).
+#: Bytes per sample of a render in flight: ray, surface interaction, colour
+#: and the integrator's per-lane state. An estimate (not measured) that only
+#: has to tell a render that fits from one that cannot.
 BYTES_PER_SAMPLE = 512
 
 
