@@ -83,6 +83,13 @@ def one_error_line(proc, *parts) -> None:
         assert str(part) in lines[0], f'{part!r} not in {lines[0]!r}'
 
 
+@pytest.fixture
+def small_machine(monkeypatch):
+    """8 GiB of memory, whatever this machine has: size limits do not depend on the host."""
+    from reneus_mi import guards
+    monkeypatch.setattr(guards, 'physical_memory', lambda: 8 * 2**30)
+
+
 # ------------------------------------------------------------------ fixtures
 @pytest.fixture(scope='module')
 def world(tmp_path_factory):
@@ -169,9 +176,9 @@ def test_optimize_batch_beyond_memory(world, tmp_path):
             '--batch-rays 1000000000', 'expected a smaller value', watch=[tmp_path, world['data']])
 
 
-def test_optimize_batch_beyond_memory_but_not_indices(world, tmp_path):
+def test_optimize_batch_beyond_memory_but_not_indices(world, tmp_path, small_machine):
     refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, '--batch-rays', 10**7],
-            '--batch-rays 10000000', 'needs about', 'GiB', watch=[tmp_path])
+            '--batch-rays 10000000', 'needs about', 'this machine has 8 GiB', watch=[tmp_path])
 
 
 def test_optimize_without_a_scene_needs_demo(tmp_path):
@@ -429,7 +436,7 @@ def test_extract_resolution_beyond_indices(world, tmp_path):
             '--resolution 100000', '32-bit index limit', watch=[tmp_path, world['run']])
 
 
-def test_extract_resolution_beyond_memory(world, tmp_path):
+def test_extract_resolution_beyond_memory(world, tmp_path, small_machine):
     refused(extract.main, [world['checkpoint'], '-o', tmp_path / 'm.ply', '--resolution', 1600],
             '--resolution 1600', 'needs about', 'expected a smaller value', watch=[tmp_path])
 
@@ -543,7 +550,7 @@ def test_synth_into_a_folder_with_files(tmp_path):
             'is not empty (holds notes.txt)', watch=[tmp_path])
 
 
-def test_synth_beyond_memory(tmp_path):
+def test_synth_beyond_memory(tmp_path, small_machine):
     refused(synth.main, ['sphere', '-o', tmp_path / 'out', '--views', 60, '--res', 100000],
             '60 views at 100000x100000', 'needs about', watch=[tmp_path])
 
@@ -665,3 +672,19 @@ def test_optimize_help_states_each_default_once(capsys):
     assert exit_info.value.code == 0
     text = ' '.join(capsys.readouterr().out.split())
     assert text.count('(default: 3000)') == 1 and '(default: None)' not in text
+
+
+def test_final_mesh_without_surface_says_the_run_can_go_on(world, tmp_path, monkeypatch):
+    from reneus_mi.mesh import NoSurfaceError
+    from reneus_mi.trainer import TrainingError
+    from test_checkpoint import new_trainer
+    trainer = new_trainer(world['scene'], tmp_path / 'out')
+    trainer.iteration = trainer.cfg.iterations          # nothing left to train
+
+    def no_surface(*args, **kwargs):
+        raise NoSurfaceError('NeuSField has no zero crossing')
+    monkeypatch.setattr(trainer, 'write_mesh', no_surface)
+    with pytest.raises(TrainingError, match=r'no surface yet after 6 steps; the checkpoint .* is '
+                                            r'saved: continue with --resume and more --iterations'):
+        trainer.run(progress=False)
+    assert os.path.isfile(trainer.checkpoint_path)
