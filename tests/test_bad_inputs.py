@@ -688,3 +688,11 @@ def test_final_mesh_without_surface_says_the_run_can_go_on(world, tmp_path, monk
                                             r'saved: continue with --resume and more --iterations'):
         trainer.run(progress=False)
     assert os.path.isfile(trainer.checkpoint_path)
+
+
+def test_resume_with_moved_data(world, run_copy, tmp_path):
+    """The same photographs in another folder: an explicit --data is checked and recorded."""
+    moved = tmp_path / 'moved'
+    shutil.copytree(world['data'], moved)
+    assert optimize.main(['-o', str(run_copy), '--resume', '--quiet', '--data', str(moved)]) == 0
+    assert json.loads((run_copy / 'config.json').read_text())['data'] == str(moved)
