@@ -471,6 +471,20 @@ def _read_properties(props: mi.Properties):
     return name, ModelConfig(field=field_cfg, **sections), field, frame, dataset
 
 
+def property_types(preset_name: str = 'paper', field_kind: str | None = None) -> dict[str, type]:
+    """The XML properties of the integrator's settings and their Python types.
+
+    ``field_<name>`` properties belong to ``field_kind`` (default: the preset's field).
+    """
+    types = {'preset': str, 'field': str, 'field_center': tuple, 'field_scale': float, 'dataset': str}
+    for cls in (RenderConfig, SamplerConfig):
+        types.update(typing.get_type_hints(cls))
+    cls = field_config_class(field_kind or preset(preset_name).model.field.kind, 'field')
+    types.update({f'field_{name}': kind for name, kind in typing.get_type_hints(cls).items()
+                  if name != 'kind'})
+    return types
+
+
 def _get(props: mi.Properties, name: str, kind, default=None):
     """Property ``name`` checked against ``kind``; the error names it and what was expected."""
     if name not in props:

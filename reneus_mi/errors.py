@@ -1,12 +1,26 @@
-"""Turning exceptions from inside Mitsuba/Dr.Jit into one readable message.
+"""The library's one exception type, and turning Mitsuba's wrapped errors into one line.
+
+Library code raises :class:`ReneusError` (a ``ValueError``, so callers that
+catch ``ValueError`` keep working) with a message that names the file, field
+or value and what was expected. Only a command's ``main()`` turns it into
+``error: ...`` on stderr and a non-zero exit status (:func:`exit_on_error`).
 
 Errors of the plugins surface wrapped: ``mi.load_file`` puts the XML location
 first and a Python traceback before the plugin's message; ``mi.render`` raises
 "error while performing a custom differentiable operation" with the plugin's
-error as its cause. Command-line tools print :func:`user_message` instead of a
-traceback.
+error as its cause. :func:`user_message` digs the plugin's message out.
 """
 from __future__ import annotations
+
+import contextlib
+
+
+class ReneusError(ValueError):
+    """Bad input or a state the library cannot go on from; the message says which and why."""
+
+
+class NoSurfaceError(ReneusError):
+    """The field has no zero level set where a mesh was asked for."""
 
 
 def root_cause(e: BaseException) -> BaseException:
@@ -19,23 +33,41 @@ def root_cause(e: BaseException) -> BaseException:
 
 
 def user_message(e: BaseException) -> str:
-    """The message a user needs: where (if Mitsuba said) and what."""
+    """The message a user needs, on one line: where (if Mitsuba said) and what."""
     e = root_cause(e)
-    lines = [line for line in str(e).strip().splitlines() if line.strip()]
+    lines = [line.strip() for line in str(e).strip().splitlines() if line.strip()]
     if not lines:
         return repr(e)
     if len(lines) <= 2:
-        return '\n'.join(lines)
-    where = lines[0].split(' Traceback (most recent call last):')[0]
-    return f'{where}\n  {lines[-1].strip()}'
+        return ': '.join(lines)
+    where = lines[0].split(' Traceback (most recent call last):')[0].rstrip(': ')
+    return f'{where}: {lines[-1]}'
 
 
-class ReneusError(ValueError):
-    """A problem with the user's input or settings, stated in one line; CLIs print it as is."""
+def one_line(text: str) -> str:
+    """``text`` with its line breaks folded, so that a message is one line of stderr."""
+    return ' '.join(part.strip() for part in str(text).splitlines() if part.strip())
 
 
-class NoSurfaceError(ReneusError):
-    """The field has no zero level set where a mesh was asked for."""
+@contextlib.contextmanager
+def exit_on_error(*extra: type[BaseException]):
+    """In a ``main()``: end with ``error: ...`` (one line on stderr, exit status 1).
+
+    Catches library errors (``ValueError``, so :class:`ReneusError`),
+    ``OSError`` (a full disk, a permission denied: ordinary failures of the
+    machine) and the ``extra`` types (e.g. ``RuntimeError`` from Mitsuba).
+    """
+    try:
+        yield
+    except (ValueError, OSError, *extra) as e:
+        text = user_message(e) if isinstance(e, RuntimeError) else _os_text(e)
+        raise SystemExit(f'error: {one_line(text)}') from None
+
+
+def _os_text(e: BaseException) -> str:
+    if isinstance(e, OSError) and e.filename:
+        return f'{e.filename}: {e.strerror or e}'
+    return str(e)
 
 
 def _owner(obj) -> str:

@@ -25,12 +25,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
 import numpy as np
 import trimesh
 
-from reneus_mi.mesh import POSTPROCESS_MODES, check_container, inside, load_mesh, postprocess
+from reneus_mi import guards
+from reneus_mi.errors import ReneusError, exit_on_error
+from reneus_mi.io import atomic_write_text
+from reneus_mi.mesh import POSTPROCESS_MODES, inside, load_container, load_mesh, postprocess
 
 #: The paper's minimum number of sample points.
 MIN_POINTS = 10000
@@ -38,7 +40,7 @@ MIN_POINTS = 10000
 
 def _sample(mesh: trimesh.Trimesh, n: int, seed: int, name: str) -> np.ndarray:
     if len(mesh.faces) == 0 or not mesh.area > 0.0:
-        raise ValueError(f'{name} mesh has no surface to sample (faces={len(mesh.faces)}, area={mesh.area})')
+        raise ReneusError(f'{name} mesh has no surface to sample (faces={len(mesh.faces)}, area={mesh.area})')
     points, _ = trimesh.sample.sample_surface(mesh, n, seed=seed)
     return np.asarray(points)
 
@@ -59,15 +61,15 @@ def chamfer(pred: trimesh.Trimesh, gt: trimesh.Trimesh, *, n_points: int | None 
     if n_points is None:
         n_points = max(MIN_POINTS, int(0.2 * len(gt.vertices)))
     if n_points < 1:
-        raise ValueError(f'n_points={n_points}: expected a positive number')
+        raise ReneusError(f'n_points={n_points}: expected a positive number')
     if not threshold > 0.0:
-        raise ValueError(f'threshold={threshold}: expected a positive distance')
+        raise ReneusError(f'threshold={threshold}: expected a positive distance')
     pred_points = _sample(pred, n_points, seed, 'predicted')
     gt_points = _sample(gt, n_points, seed, 'ground-truth')
     if container is not None:
         pred_points = pred_points[inside(pred_points, container)]
         if len(pred_points) == 0:
-            raise ValueError('every predicted point lies outside the container')
+            raise ReneusError('every predicted point lies outside the container')
 
     d_pred, _ = cKDTree(gt_points).query(pred_points, workers=-1)
     d_gt, _ = cKDTree(pred_points).query(gt_points, workers=-1)
@@ -124,28 +126,27 @@ def main(argv: list[str] | None = None) -> dict:
                         help='number of surface samples per mesh (default: the paper\'s N)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the surface sampling (default: %(default)s)')
     parser.add_argument('--json', metavar='OUT', help='also write the numbers to this JSON file')
+    parser.add_argument('--overwrite', action='store_true', help='replace an existing --json file')
     args = parser.parse_args(argv)
 
-    try:
-        pred, gt = load_mesh(args.pred), load_mesh(args.gt)
-        container = None
-        if args.container:
-            container = load_mesh(args.container)
-            check_container(container, args.container)
+    with exit_on_error():
+        if args.json:
+            guards.check_output_file(args.json, inputs=[args.pred, args.gt, args.container],
+                                     overwrite=args.overwrite, extensions=('.json',))
+        pred, gt = load_mesh(args.pred, 'predicted mesh'), load_mesh(args.gt, 'ground-truth mesh')
+        container = load_container(args.container) if args.container else None
         if args.postprocess == 'crop' and container is None:
-            raise ValueError('--postprocess crop needs --container')
+            raise ReneusError('--postprocess crop needs --container')
         pred = postprocess(pred, args.postprocess, container)
         if len(pred.faces) == 0:
-            raise ValueError(f"{args.pred}: nothing is left after --postprocess {args.postprocess}")
+            raise ReneusError(f"{args.pred}: nothing is left after --postprocess {args.postprocess}")
         result = chamfer(pred, gt, n_points=args.points, seed=args.seed,
                          threshold=args.threshold, container=container)
-    except ValueError as e:
-        sys.exit(f'error: {e}')
-    result['postprocess'] = args.postprocess
+        result['postprocess'] = args.postprocess
+        if args.json:
+            atomic_write_text(args.json, json.dumps({'pred': args.pred, 'gt': args.gt, **result},
+                                                    indent=2))
     print(_table(result))
-    if args.json:
-        with open(args.json, 'w') as f:
-            json.dump({'pred': args.pred, 'gt': args.gt, **result}, f, indent=2)
     return result
 
 

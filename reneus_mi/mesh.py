@@ -19,11 +19,13 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.errors import NoSurfaceError
+from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.fields.base import Field
 
 #: Post-processing rules understood by :func:`postprocess`.
 POSTPROCESS_MODES = ('largest', 'crop', 'none')
+#: Mesh files the package reads.
+MESH_EXTENSIONS = ('.ply', '.obj', '.stl', '.off')
 
 # Directions of the parity rays in :func:`inside`: three independent, generic
 # directions, so that a ray grazing an edge or a vertex of the container (the
@@ -136,17 +138,38 @@ def _keep_faces(mesh: trimesh.Trimesh, mask: np.ndarray) -> trimesh.Trimesh:
     return out
 
 
+def signed_volume(vertices, faces) -> float:
+    """Volume enclosed by a closed triangle mesh, negative when its faces are wound inward.
+
+    The divergence theorem over the faces (each face with the origin spans a
+    tetrahedron): it needs no shared vertices, so flat-shaded meshes work.
+    """
+    v = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    return float(np.einsum('ij,ij->i', v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+
+
 def check_container(container, name: str = 'container') -> None:
-    """Raise a ValueError naming ``name`` unless ``container`` is a closed triangle mesh."""
+    """Raise naming ``name`` unless ``container`` is a closed, outward-facing triangle mesh.
+
+    Inward normals would make the renderer take entering the glass for
+    leaving it (the specimen vanishes from the renders), so they are refused
+    rather than guessed at: the file itself must be fixed, because Mitsuba
+    reads the file, not this copy.
+    """
     if not isinstance(container, trimesh.Trimesh) or len(container.faces) == 0:
-        raise ValueError(f'{name}: expected a closed trimesh.Trimesh with faces, got {container!r}')
+        raise ReneusError(f'{name}: expected a closed triangle mesh with faces, got {container!r}')
     # Meshes written per face (e.g. for flat shading) duplicate vertices; the
     # surface is still closed once they are merged.
     merged = container.copy()
     merged.merge_vertices()
     if not merged.is_watertight:
-        raise ValueError(f'{name}: the mesh is not closed (watertight), so inside/outside '
-                         'is undefined')
+        raise ReneusError(f'{name}: container mesh is not closed (not watertight), so '
+                          'inside/outside is undefined; expected a mesh enclosing a volume')
+    volume = signed_volume(container.vertices, container.faces)
+    if not volume > 0.0:
+        raise ReneusError(f'{name}: container normals point inward (signed volume {volume:.4g}); '
+                          'expected outward normals: reverse the winding of its faces '
+                          '(trimesh: mesh.invert())')
 
 
 def inside(points, container: trimesh.Trimesh) -> np.ndarray:
@@ -162,12 +185,7 @@ def inside(points, container: trimesh.Trimesh) -> np.ndarray:
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
 
-    shape = mi.Mesh('container', len(container.vertices), len(container.faces))
-    params = mi.traverse(shape)
-    params['vertex_positions'] = mi.Float(np.ravel(container.vertices).astype(np.float32))
-    params['faces'] = mi.UInt32(np.ravel(container.faces).astype(np.uint32))
-    params.update()
-    scene = mi.load_dict({'type': 'scene', 'container': shape})
+    scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container)})
 
     # Every crossing is a distinct face, so a ray that has not left the
     # container after this many hits is stuck re-hitting one spot.
@@ -177,6 +195,16 @@ def inside(points, container: trimesh.Trimesh) -> np.ndarray:
     for direction in _RAY_DIRECTIONS:
         votes += _parity(scene, origin, mi.Vector3f(*direction), max_hits)
     return np.asarray(votes) >= 2
+
+
+def mitsuba_mesh(mesh: trimesh.Trimesh, name: str = 'container') -> mi.Mesh:
+    """The triangles of ``mesh`` as a Mitsuba shape (for ray tests)."""
+    shape = mi.Mesh(name, len(mesh.vertices), len(mesh.faces))
+    params = mi.traverse(shape)
+    params['vertex_positions'] = mi.Float(np.ravel(mesh.vertices).astype(np.float32))
+    params['faces'] = mi.UInt32(np.ravel(mesh.faces).astype(np.uint32))
+    params.update()
+    return shape
 
 
 @dr.syntax
@@ -219,15 +247,30 @@ def postprocess(mesh: trimesh.Trimesh, mode: str, container: trimesh.Trimesh | N
     raise ValueError(f'postprocess mode {mode!r}: expected one of {", ".join(POSTPROCESS_MODES)}')
 
 
-def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
-    """Read a triangle mesh (any format trimesh reads); a clear error if that fails or it is empty."""
+def load_mesh(path: str | os.PathLike, what: str = 'mesh') -> trimesh.Trimesh:
+    """Read a triangle mesh (.ply, .obj, .stl, .off); a clear error if that fails or it is empty.
+
+    The one mesh reader of the package; vertices are kept as stored (no
+    merging), so flat-shaded meshes keep their face normals.
+    """
     path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in MESH_EXTENSIONS:
+        raise ReneusError(f"{path}: {what} file of unknown type {ext or '(none)'}; expected "
+                          f"{', '.join(MESH_EXTENSIONS)}")
     if not os.path.isfile(path):
-        raise ValueError(f'{path}: no such mesh file')
+        raise ReneusError(f'{path}: {what} file does not exist')
     try:
-        mesh = trimesh.load(path, force='mesh')
+        mesh = trimesh.load(path, force='mesh', process=False)
     except Exception as e:  # trimesh raises many kinds for unreadable files
-        raise ValueError(f'{path}: cannot read a mesh ({type(e).__name__}: {e})') from None
+        raise ReneusError(f'{path}: cannot read the {what} ({type(e).__name__}: {e})') from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f'{path}: the file holds no triangles')
+        raise ReneusError(f'{path}: the {what} file holds no triangles')
+    return mesh
+
+
+def load_container(path: str | os.PathLike) -> trimesh.Trimesh:
+    """Read a container mesh and check it (:func:`check_container`)."""
+    mesh = load_mesh(path, 'container mesh')
+    check_container(mesh, os.fspath(path))
     return mesh

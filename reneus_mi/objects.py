@@ -28,6 +28,7 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
+from reneus_mi.errors import ReneusError
 from reneus_mi.fields.base import Field
 from reneus_mi.mesh import extract_mesh, load_mesh
 
@@ -216,11 +217,11 @@ def load_object(name_or_path: str | os.PathLike) -> trimesh.Trimesh:
     if key in OBJECTS:
         return _cached(key).copy()
     if not os.path.isfile(key):
-        raise ValueError(f"{key!r}: neither an object name ({', '.join(OBJECTS)}) "
+        raise ReneusError(f"{key!r}: neither an object name ({', '.join(OBJECTS)}) "
                          f"nor an existing mesh file")
     mesh = load_mesh(key)
     if not np.all(np.isfinite(mesh.vertices)):
-        raise ValueError(f"{key}: mesh has non-finite vertex positions")
+        raise ReneusError(f"{key}: mesh has non-finite vertex positions")
     if mesh.visual.kind == 'texture':
         mesh.visual = mesh.visual.to_color()
     elif mesh.visual.kind != 'vertex':
@@ -239,9 +240,9 @@ def normalize(mesh: trimesh.Trimesh, margin: float = 0.15,
     meshes; the box is watertight with outward normals.
     """
     if not 0.0 <= margin:
-        raise ValueError(f"margin={margin}: expected a non-negative fraction of the object's size")
+        raise ReneusError(f"margin={margin}: expected a non-negative fraction of the object's size")
     if not 0.0 < radius <= 1.0:
-        raise ValueError(f"radius={radius}: expected a value in (0, 1]")
+        raise ReneusError(f"radius={radius}: expected a value in (0, 1]")
     lo, hi = mesh.bounds
     center, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     box_half = half + margin * half.max()

@@ -19,7 +19,7 @@ import sys
 
 from reneus_mi import cli
 from reneus_mi.config import TrainConfig
-from reneus_mi.errors import ReneusError, user_message
+from reneus_mi.errors import ReneusError, exit_on_error
 
 #: The embedded demo: object, dataset size and preset.
 DEMO_OBJECT = 'statuette'
@@ -76,18 +76,15 @@ def main(argv=None) -> int:
     cli.add_arguments(parser, TrainConfig, default_note="the preset's")
     args = parser.parse_args(argv)
     try:
-        print(run(args))
-    except ValueError as e:  # ReneusError and the data loaders' errors
-        raise SystemExit(f'error: {e}') from None
-    except (OSError, RuntimeError) as e:
-        raise SystemExit(f'error: {user_message(e)}') from None
+        with exit_on_error(RuntimeError):
+            print(run(args))
     except KeyboardInterrupt:
         raise SystemExit('interrupted: checkpoint written; continue with --resume') from None
     return 0
 
 
 def run(args) -> str:
-    from reneus_mi import runs
+    from reneus_mi import guards, runs
     from reneus_mi.config import replace
     if args.scene is None and not args.demo and not args.resume:
         raise ReneusError('no scene given: pass a scene XML (python -m reneus_mi.scene DATA -o '
@@ -98,13 +95,14 @@ def run(args) -> str:
         spec = runs.read_spec(out)
         if args.scene:
             raise ReneusError(f'{out}: --resume continues the run recorded in its config.json '
-                              f'(scene {spec.scene}); no scene can be given with it')
+                              f'(scene {spec.scene}), but {args.scene} was given; expected no scene')
         if args.data:
             spec = spec.with_data(os.path.abspath(args.data))
     else:
         if os.path.isfile(os.path.join(out, runs.CHECKPOINT_FILE)):
             raise ReneusError(f'{out} already holds a run; continue it with --resume or choose '
                               'another --output')
+        guards.check_run_dir(out, inputs=[args.scene, args.data])
         scene = make_demo(os.path.join(out, 'data')) if args.demo else args.scene
         spec = spec_of_scene(scene, args.data)
     given = cli.given_arguments(TrainConfig, args)
@@ -115,8 +113,11 @@ def run(args) -> str:
     cfg = spec.config.train
     ended = (f"stopped by the time budget ({cfg.max_minutes:g} min) after {result['iterations']} iterations"
              if result['stopped_by_budget'] else f"done: {result['iterations']} iterations")
+    psnr = result['psnr']
+    if psnr != psnr:  # no step ran (a finished run resumed): the log has the figure
+        psnr = guards.recent_psnr(guards.read_log(os.path.join(out, 'log.jsonl'))) or float('nan')
     lines = [f"{ended} in {result['seconds']:.0f} s"
-             + (f", PSNR {result['psnr']:.2f} dB (last 100 steps)" if result['psnr'] == result['psnr'] else '')
+             + (f", PSNR {psnr:.2f} dB (last 100 steps)" if psnr == psnr else '')
              + f"; mesh {result['mesh']}"
              + (f"; renders {os.path.join(out, 'images')}" if cfg.validate_every else '')]
     from reneus_mi.data import load_dataset

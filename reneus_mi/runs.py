@@ -11,13 +11,11 @@ be interrupted and started again at no cost.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 from dataclasses import dataclass
 
-import numpy as np
-
+from reneus_mi import guards
 from reneus_mi.config import ReconstructionConfig, from_dict, to_dict
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_write_text
@@ -54,7 +52,10 @@ class RunSpec:
         except KeyError as e:
             raise ReneusError(f'{where}: no {e.args[0]!r} entry; expected scene, data, model, train') from None
         preset, bounds, fingerprint = d.pop('preset', ''), d.pop('mesh_bounds', None), d.pop('data_fingerprint', None)
-        config = from_dict(ReconstructionConfig, d, where)
+        try:
+            config = from_dict(ReconstructionConfig, d)
+        except ReneusError as e:
+            raise ReneusError(f'{where}: {e}') from None
         return RunSpec(scene, data, config, preset, None if bounds is None else tuple(map(tuple, bounds)),
                        fingerprint)
 
@@ -68,18 +69,10 @@ class RunSpec:
     def with_data(self, data: str) -> 'RunSpec':
         """The run on the dataset in ``data``, which must be the one it was started on (moved)."""
         from reneus_mi.data import load_dataset
-        found = fingerprint(load_dataset(data, need_container=False))
-        if self.data_fingerprint is not None and found != self.data_fingerprint:
-            raise ReneusError(f'{data}: not the dataset this run was started on ({self.data}): '
-                              f'expected {self.data_fingerprint}, found {found}')
+        if self.data_fingerprint is not None:
+            guards.check_same_dataset(self.data_fingerprint, load_dataset(data, need_container=False),
+                                      f'--data {data}: not the dataset this run was started on')
         return dataclasses.replace(self, data=data)
-
-
-def fingerprint(ds) -> dict:
-    """What identifies a dataset for a run: views, image size, a digest of the cameras."""
-    cameras = np.concatenate([np.round(ds.K, 6).ravel(), np.round(ds.c2w, 6).ravel()])
-    return {'views': len(ds), 'width': ds.width, 'height': ds.height,
-            'cameras': hashlib.sha1(cameras.astype(np.float64).tobytes()).hexdigest()[:16]}
 
 
 def read_spec(out: str) -> RunSpec:
@@ -111,10 +104,13 @@ def make_trainer(spec: RunSpec, out: str):
         raise ReneusError(f'{spec.scene}: the integrator is {type(integrator).__name__}; '
                           'expected <integrator type="reneus">')
     integrator.configure(spec.config.model)
+    guards.check_batch(spec.config.train.batch_rays, spec.config.model)
     dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus')
     if spec.data_fingerprint is None:
-        spec.data_fingerprint = fingerprint(dataset)
+        spec.data_fingerprint = guards.dataset_fingerprint(dataset)
     frame = integrator.frame_of(scene)
+    if frame.bounds is not None:
+        guards.check_field_reaches(frame.center, frame.scale, *frame.bounds, spec.scene)
     if spec.mesh_bounds is not None:
         frame = dataclasses.replace(frame, bounds=spec.mesh_bounds)
     return Trainer(scene, dataset, spec.config.train, out, frame=frame)
@@ -123,16 +119,20 @@ def make_trainer(spec: RunSpec, out: str):
 def run(spec: RunSpec, out: str, *, resume: bool = False, progress: bool = True) -> dict:
     """Train ``spec`` in folder ``out`` (continuing its checkpoint with ``resume``); return the result."""
     from reneus_mi.trainer import TrainingError
+    guards.check_run_dir(out, inputs=[spec.scene, spec.data], resume=resume)
     trainer = make_trainer(spec, out)
     os.makedirs(out, exist_ok=True)
-    if resume:
-        trainer.resume()
-    write_spec(out, spec)
-    try:
-        result = trainer.run(progress=progress)
-    except TrainingError as e:
-        result = {'failure': str(e), 'iterations': trainer.iteration}
-    atomic_write_text(os.path.join(out, RESULT_FILE), json.dumps(result, indent=2))
+    with guards.RunLock(out):
+        guards.remove_stray_temporaries(out)
+        if resume:
+            guards.check_npz_file(trainer.checkpoint_path, 'checkpoint')
+            trainer.resume()
+        write_spec(out, spec)
+        try:
+            result = trainer.run(progress=progress)
+        except TrainingError as e:
+            result = {'failure': str(e), 'iterations': trainer.iteration}
+        atomic_write_text(os.path.join(out, RESULT_FILE), json.dumps(result, indent=2))
     return result
 
 

@@ -23,9 +23,12 @@ import xml.etree.ElementTree as ET
 import mitsuba as mi
 import numpy as np
 
+from reneus_mi import guards
 from reneus_mi.data import Dataset, load_dataset
 from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
 from reneus_mi.data.container import mesh_type
+from reneus_mi.errors import ReneusError, exit_on_error
+from reneus_mi.io import atomic_open
 
 #: Container IOR when the dataset states none (the paper's synthetic glass).
 DEFAULT_IOR = 1.45
@@ -83,7 +86,7 @@ def _prop(parent: ET.Element, name: str, value) -> None:
     elif isinstance(value, str):
         ET.SubElement(parent, 'string', name=name, value=value)
     else:
-        raise ValueError(f"integrator setting {name}={value!r}: expected a bool, int, float "
+        raise ReneusError(f"integrator setting {name}={value!r}: expected a bool, int, float "
                          f"or str, got {type(value).__name__}")
 
 
@@ -100,7 +103,7 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus',
     ds.validate()
     clash = [k for k in integrator_settings if integrator == 'reneus' and k in _RESERVED]
     if clash:
-        raise ValueError(f"integrator settings {clash}: set by write_scene from the dataset")
+        raise ReneusError(f"integrator settings {clash}: set by write_scene from the dataset")
     shape_type = None if ds.container is None else mesh_type(ds.container)
     ior = ds.ior
     if ior is None and ds.container is not None:
@@ -160,24 +163,51 @@ def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus',
     """
     xml_dir = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(xml_dir):
-        raise ValueError(f"{path}: folder {xml_dir} does not exist")
+        raise ReneusError(f"{path}: folder {xml_dir} does not exist")
     tree = scene_xml(ds, xml_dir, integrator=integrator, **integrator_settings)
-    tree.write(path, encoding='utf-8', xml_declaration=True)
+    with atomic_open(path, 'wb') as f:
+        tree.write(f, encoding='utf-8', xml_declaration=True)
 
 
-def _setting(text: str) -> tuple[str, bool | int | float | str]:
-    """Parse ``KEY=VALUE`` from the command line, typing VALUE."""
+def _setting(text: str) -> tuple[str, str]:
     key, sep, value = text.partition('=')
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE")
-    if value.lower() in ('true', 'false'):
-        return key, value.lower() == 'true'
+    return key, value
+
+
+def _literal(text: str) -> bool | int | float | str:
+    if text.lower() in ('true', 'false'):
+        return text.lower() == 'true'
     for cast in (int, float):
         try:
-            return key, cast(value)
+            return cast(text)
         except ValueError:
             pass
-    return key, value
+    return text
+
+
+def typed_settings(settings: list[tuple[str, str]], preset: str) -> dict:
+    """``--set`` values typed as the integrator's settings are (``reneus_mi.config``)."""
+    from reneus_mi.plugins.reneus import property_types
+    kinds = dict(settings)
+    types = property_types(preset, kinds.get('field'))
+    out = {}
+    for key, text in settings:
+        if key not in types or key in _RESERVED or key == 'preset':
+            raise ReneusError(f"--set {key}: not a setting of the reneus integrator; expected one of "
+                              f"{', '.join(k for k in types if k not in (*_RESERVED, 'preset'))}")
+        kind = types[key]
+        try:
+            if kind is bool:
+                if text.lower() not in ('true', 'false'):
+                    raise ValueError
+                out[key] = text.lower() == 'true'
+            else:
+                out[key] = kind(text) if kind in (int, float, str) else text
+        except ValueError:
+            raise ReneusError(f"--set {key}={text}: expected {'true or false' if kind is bool else kind.__name__}") from None
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -190,19 +220,29 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument('-o', '--output', required=True, help='scene XML file to write')
     parser.add_argument('--integrator', default='reneus',
                         help='integrator plugin name (default: %(default)s)')
+    parser.add_argument('--preset', default='fast',
+                        help="the reneus integrator's preset (reneus_mi.presets: fast, cpu, paper, "
+                             "demo, tiny; default: %(default)s)")
     parser.add_argument('--set', dest='settings', metavar='KEY=VALUE', type=_setting,
                         action='append', default=[],
-                        help='integrator property; true/false, integers and floats are typed '
-                             'as such, anything else is a string (repeatable)')
+                        help='an integrator setting over the preset, e.g. max_depth=3 or field_hidden=64, '
+                             'typed as reneus_mi.config declares it (repeatable)')
+    parser.add_argument('--overwrite', action='store_true', help='replace an existing scene file')
     args = parser.parse_args(argv)
-    try:
+    with exit_on_error():
+        guards.check_output_file(args.output, inputs=[args.data_dir], overwrite=args.overwrite,
+                                 extensions=('.xml',))
         ds = load_dataset(args.data_dir, need_container=False)
         if ds.container is None:
             warnings.warn(f"{args.data_dir}: dataset names no container mesh; "
                           "the scene has none")
-        write_scene(ds, args.output, integrator=args.integrator, **dict(args.settings))
-    except ValueError as err:
-        parser.exit(2, f"error: {err}\n")
+        if args.integrator == 'reneus':
+            from reneus_mi.presets import preset
+            preset(args.preset)
+            settings = {'preset': args.preset, **typed_settings(args.settings, args.preset)}
+        else:  # another plugin's settings: typed by their look
+            settings = {key: _literal(text) for key, text in args.settings}
+        write_scene(ds, args.output, integrator=args.integrator, **settings)
 
 
 if __name__ == '__main__':

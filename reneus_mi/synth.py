@@ -33,9 +33,12 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
+from reneus_mi import guards
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.data.container import container_masks
+from reneus_mi.errors import ReneusError, exit_on_error
+from reneus_mi.io import atomic_export, atomic_path, atomic_write_text
 from reneus_mi.objects import OBJECTS, load_object, normalize
 from reneus_mi.scene import sensor_dict, write_scene
 
@@ -71,9 +74,9 @@ def sample_cameras(views: int, res: int, seed: int = 0,
     ``K`` (N,3,3) and OpenCV ``c2w`` (N,4,4).
     """
     if views < 1 or res < 1:
-        raise ValueError(f"views={views}, res={res}: expected positive numbers")
+        raise ReneusError(f"views={views}, res={res}: expected positive numbers")
     if distance <= 1.0:
-        raise ValueError(f"distance={distance}: cameras must be outside the unit sphere")
+        raise ReneusError(f"distance={distance}: cameras must be outside the unit sphere")
     rng = np.random.default_rng(seed)
     pos = rng.normal(size=(views, 3))
     pos *= distance / np.linalg.norm(pos, axis=1, keepdims=True)
@@ -147,14 +150,15 @@ def write_object(mesh: trimesh.Trimesh, path: str) -> None:
     params.update()
     shape.recompute_vertex_normals()
     shape.add_attribute('vertex_color', 3, mi.Float(albedo.astype(np.float32).ravel()))
-    shape.write_ply(path)
+    with atomic_path(path) as tmp:
+        shape.write_ply(tmp)
 
 
 def write_box(box: trimesh.Trimesh, path: str) -> None:
     """Write the box with one vertex per face corner: no loader can smooth its normals."""
     flat = box.copy()
     flat.unmerge_vertices()
-    flat.export(path)
+    atomic_export(flat, path)
 
 
 def _noise(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
@@ -183,18 +187,24 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     """
     subsets = tuple(subsets)
     if not subsets or any(s not in SUBSETS for s in subsets) or len(set(subsets)) != len(subsets):
-        raise ValueError(f"subsets={subsets!r}: expected distinct names among {SUBSETS}")
+        raise ReneusError(f"subsets={subsets!r}: expected distinct names among {SUBSETS}")
     for name, value in (('spp', spp), ('max_depth', max_depth)):
         if int(value) != value or value < 1:
-            raise ValueError(f"{name}={value!r}: expected a positive integer")
+            raise ReneusError(f"{name}={value!r}: expected a positive integer")
+    if not margin >= 0:
+        raise ReneusError(f"margin={margin!r}: expected a number >= 0")
     start = time.perf_counter()
     K, c2w = sample_cameras(views, res, seed)
+    # Every check comes before the first write: a refused run leaves the
+    # folder as it found it.
+    out_dir = guards.check_output_dir(out_dir, what='synth output folder')
+    guards.check_memory(dataset_bytes(views, res, len(subsets)),
+                        f'{views} views at {res}x{res}, {len(subsets)} subset(s)')
     mesh = obj.copy() if isinstance(obj, trimesh.Trimesh) else load_object(obj)
     if mesh.visual.kind != 'vertex':
-        raise ValueError("object mesh: expected per-vertex colours (mesh.visual.vertex_colors)")
+        raise ReneusError("object mesh: expected per-vertex colours (mesh.visual.vertex_colors)")
     mesh, box = normalize(mesh, margin=margin)
 
-    out_dir = os.path.abspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     gt_path, box_path = os.path.join(out_dir, 'gt.ply'), os.path.join(out_dir, 'box.ply')
     write_object(mesh, gt_path)
@@ -229,9 +239,16 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
             'subsets': list(subsets), 'seconds': result['seconds'],
             'paths': {sub: {fmt: os.path.relpath(folder, out_dir) for fmt, folder in p.items()}
                       for sub, p in paths.items()}}
-    with open(os.path.join(out_dir, 'synth.json'), 'w') as f:
-        json.dump(meta, f, indent=2)
+    atomic_write_text(os.path.join(out_dir, 'synth.json'), json.dumps(meta, indent=2))
     return result
+
+
+def dataset_bytes(views: int, res: int, subsets: int) -> int:
+    """Memory a dataset holds while it is made: linear float32 renders and float64
+    accumulators of one view, display images and masks of every view, and the
+    read-back for the scene writer."""
+    pixels = views * res * res
+    return pixels * (subsets * (3 * 4 * 3) + 1) + res * res * (3 * 8 + 3 * 4)
 
 
 def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path) -> dict:
@@ -280,12 +297,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--subsets', nargs='+', choices=SUBSETS, default=list(SUBSETS),
                         help='subsets to render (default: both)')
     args = parser.parse_args(argv)
-    try:
+    with exit_on_error():
         result = make_dataset(args.object, args.out, views=args.views, res=args.res,
                               spp=args.spp, seed=args.seed, max_depth=args.max_depth,
                               subsets=args.subsets, margin=args.margin)
-    except ValueError as err:
-        parser.error(str(err))
     print(f"wrote {os.path.abspath(args.out)}: {args.views} views at {args.res}x{args.res}, "
           f"{result['spp']} spp, max_depth {result['max_depth']}, noise (per-pixel std inside "
           f"the box, display units) {result['noise']:.4f}, {result['seconds']:.0f} s")

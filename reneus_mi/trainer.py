@@ -23,6 +23,7 @@ import os
 import signal
 import threading
 import time
+import warnings
 from dataclasses import asdict, dataclass
 
 import drjit as dr
@@ -31,14 +32,13 @@ import numpy as np
 import trimesh
 from drjit.opt import GradScaler
 
-from reneus_mi import checkpoint, losses
+from reneus_mi import checkpoint, guards, losses
 from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
 from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.extract import field_mesh, write_mesh
 from reneus_mi.fields import load_field
 from reneus_mi.frame import FieldFrame
-from reneus_mi.io import atomic_write_text
 from reneus_mi.pixel_sampler import JITTER, PixelSampler, step_seed
 from reneus_mi.render import write_image
 from reneus_mi.variant import is_cuda
@@ -135,7 +135,7 @@ class Trainer:
         meta = checkpoint.restore(path, self.opt, names, self.scaler)
         self.iteration = meta['iteration']
         self.best_loss = meta['best_loss']
-        _truncate_log(os.path.join(self.out, 'log.jsonl'), self.iteration)
+        guards.repair_log(os.path.join(self.out, 'log.jsonl'), self.iteration)
 
     # ------------------------------------------------------------- training
     def step(self) -> StepStats:
@@ -220,8 +220,7 @@ class Trainer:
         try:
             self.write_mesh(os.path.join(self.out, 'meshes', f'{self.iteration:06d}.ply'), resolution=64)
         except NoSurfaceError as e:
-            from tqdm import tqdm
-            tqdm.write(f'step {self.iteration}: no validation mesh ({e}); training goes on')
+            warnings.warn(f'step {self.iteration}: no mesh snapshot ({e}); training goes on')
 
     def write_mesh(self, path: str, resolution: int | None = None):
         mesh = field_mesh(self.field, self.frame, resolution or self.cfg.mesh_resolution,
@@ -289,12 +288,3 @@ def _deferred_interrupt():
         yield lambda: bool(flag)
     finally:
         signal.signal(signal.SIGINT, previous)
-
-
-def _truncate_log(path: str, iteration: int) -> None:
-    """Drop log lines of steps after ``iteration``: a resumed run redoes them."""
-    if not os.path.isfile(path):
-        return
-    with open(path) as f:
-        kept = [line for line in f if line.strip() and json.loads(line)['iteration'] <= iteration]
-    atomic_write_text(path, ''.join(kept))

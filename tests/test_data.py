@@ -23,11 +23,14 @@ def make_dataset(folder) -> Dataset:
     trimesh.creation.box(extents=BOX).export(box)
     rng = np.random.default_rng(0)
     eyes = [(3.0, 0.5, 1.0), (-1.0, 2.5, -0.5), (0.3, -2.8, 1.5)]
+    K = np.stack([intrinsics(14.0 + i, 14.0 + i, 8.0 + 0.25 * i, 6.0 - 0.5 * i) for i in range(3)])
+    c2w = np.stack([look_at(e) for e in eyes])
+    # The loader checks masks against the container's projection: start from
+    # it, with a corner pixel set so that a mask read back differs from a recomputed one.
+    masks = container_masks(box, K, c2w, H, W)
+    masks[:, 0, 0] = True
     return Dataset(images=rng.random((3, H, W, 3)).astype(np.float32),
-                   masks=rng.random((3, H, W)) > 0.5,
-                   K=np.stack([intrinsics(14.0 + i, 14.0 + i, 8.0 + 0.25 * i, 6.0 - 0.5 * i)
-                               for i in range(3)]),
-                   c2w=np.stack([look_at(e) for e in eyes]),
+                   masks=masks, K=K, c2w=c2w,
                    names=['v0.png', 'v1.png', 'v2.png'], root=str(folder),
                    container=box, ior=1.5)
 
@@ -52,7 +55,8 @@ def mutable(written, tmp_path, fmt):
 def test_round_trip(written, fmt):
     ds, root = written
     back = load_dataset(str(root / fmt))
-    assert back.names == ds.names
+    # NeuS pairs image i with world_mat_i by the number in the file name.
+    assert back.names == (ds.names if fmt == 'blender' else ['000.png', '001.png', '002.png'])
     assert np.abs(back.K - ds.K).max() < 1e-5
     assert np.abs(back.c2w - ds.c2w).max() < 1e-5
     # 8-bit PNG: half a quantisation step.
@@ -203,22 +207,22 @@ def test_blender_errors(written, tmp_path):
 
 def test_neus_errors(written, tmp_path):
     folder = mutable(written, tmp_path, 'neus')
-    os.remove(folder / 'image' / 'v2.png')
+    os.rename(folder / 'image' / '002.png', tmp_path / '002.png')
     with pytest.raises(ValueError, match=r"image: has 2 images, but .*cameras_sphere.npz has 3 "
-                                         "cameras"):
+                                         r"cameras; .* missing \[2\]"):
         load_dataset(str(folder))
-    write_png(str(folder / 'image' / 'v2.png'), np.zeros((H, W + 2, 3)))
-    with pytest.raises(ValueError, match=r"v2.png: image is 18x12, but .*v0.png is 16x12"):
+    write_png(str(folder / 'image' / '002.png'), np.zeros((H, W + 2, 3)))
+    with pytest.raises(ValueError, match=r"002.png: image is 18x12, but .*000.png is 16x12"):
         load_dataset(str(folder))
-    shutil.copy(folder / 'image' / 'v1.png', folder / 'image' / 'v2.png')
-    write_png(str(folder / 'mask' / 'v1.png'), np.ones((H - 1, W)))
-    with pytest.raises(ValueError, match=r"mask of .*v1.png: is 16x11, expected the image size "
+    shutil.copy(tmp_path / '002.png', folder / 'image' / '002.png')
+    write_png(str(folder / 'mask' / '001.png'), np.ones((H - 1, W)))
+    with pytest.raises(ValueError, match=r"mask of .*001.png: is 16x11, expected the image size "
                                          "16x12"):
         load_dataset(str(folder))
-    os.remove(folder / 'mask' / 'v1.png')
-    with pytest.raises(ValueError, match=r"mask: has 2 masks, but .*cameras_sphere.npz has 3"):
+    os.remove(folder / 'mask' / '001.png')
+    with pytest.raises(ValueError, match=r"mask: has 2 images, but .* missing \[1\]"):
         load_dataset(str(folder))
-    shutil.copy(written[1] / 'neus' / 'mask' / 'v1.png', folder / 'mask')
+    shutil.copy(written[1] / 'neus' / 'mask' / '001.png', folder / 'mask')
 
     cams = dict(np.load(folder / 'cameras_sphere.npz'))
     cams['world_mat_1'] = np.diag([1.0, 1.0, 0.0, 1.0])
@@ -266,7 +270,149 @@ def test_write_checks_first(written, tmp_path):
 
     folder = mutable(written, tmp_path, 'neus')
     before = {p: p.read_bytes() for p in folder.rglob('*') if p.is_file()}
-    shutil.copy(folder / 'image' / 'v0.png', folder / 'image' / 'zz.png')
-    with pytest.raises(ValueError, match="image: holds other images"):
+    with pytest.raises(ValueError, match="neus: lies in the dataset folder"):
         write_dataset(ds, str(folder), 'neus')
+    (tmp_path / 'other').mkdir()
+    (tmp_path / 'other' / 'notes.txt').write_text('mine')
+    with pytest.raises(ValueError, match=r"other: is not empty \(holds notes.txt\)"):
+        write_dataset(ds, str(tmp_path / 'other'), 'blender')
     assert all(p.read_bytes() == data for p, data in before.items())
+    assert os.listdir(tmp_path / 'other') == ['notes.txt']
+
+
+# ------------------------------------------------- pairing photos with cameras
+def ring_dataset(folder, n=12) -> Dataset:
+    """``n`` views around the box; image i is the constant grey i / n (its identity)."""
+    box = os.path.join(folder, 'box.ply')
+    trimesh.creation.box(extents=BOX).export(box)
+    angles = 2 * np.pi * np.arange(n) / n
+    c2w = np.stack([look_at((3 * np.cos(a), 3 * np.sin(a), 1.0)) for a in angles])
+    K = np.tile(intrinsics(14.0, 14.0, 8.0, 6.0), (n, 1, 1))
+    images = np.broadcast_to((np.arange(n) / n)[:, None, None, None], (n, H, W, 3))
+    return Dataset(images=images.astype(np.float32), masks=container_masks(box, K, c2w, H, W),
+                   K=K, c2w=c2w, names=[f'v{i}.png' for i in range(n)], root=str(folder),
+                   container=box, ior=1.5)
+
+
+def test_neus_views_follow_the_number_in_the_name(tmp_path):
+    """0.png ... 11.png: view 10 is world_mat_10, not the third file in text order."""
+    ds = ring_dataset(tmp_path)
+    folder = tmp_path / 'neus'
+    write_dataset(ds, str(folder), 'neus')
+    for sub in ('image', 'mask'):
+        for i in range(12):
+            os.rename(folder / sub / f'{i:03d}.png', folder / sub / f'{i}.png')
+    back = load_dataset(str(folder))
+    assert back.names == [f'{i}.png' for i in range(12)]
+    grey = back.images[:, 0, 0, 0]
+    assert np.abs(grey - np.arange(12) / 12).max() <= 0.5 / 255 + 1e-6
+    assert np.abs(back.c2w - ds.c2w).max() < 1e-5
+
+
+@pytest.mark.parametrize('rename, message', [
+    (('1.png', '01.png'), r"1.png both name view 1|01.png and 1.png both name view 1"),
+    (('3.png', 'three.png'), r"three.png: expected exactly one view number"),
+    (('5.png', '12.png'), r"missing \[5\], unexpected \[12\]"),
+])
+def test_neus_ambiguous_names_are_errors(tmp_path, rename, message):
+    ds = ring_dataset(tmp_path)
+    folder = tmp_path / 'neus'
+    write_dataset(ds, str(folder), 'neus')
+    shutil.rmtree(folder / 'mask')
+    for i in range(12):
+        os.rename(folder / 'image' / f'{i:03d}.png', folder / 'image' / f'{i}.png')
+    src, dst = rename
+    if src == '1.png':
+        shutil.copy(folder / 'image' / src, folder / 'image' / dst)
+        os.remove(folder / 'image' / '11.png')  # keep the count equal to the cameras'
+    else:
+        os.rename(folder / 'image' / src, folder / 'image' / dst)
+    with pytest.raises(ValueError, match=message):
+        load_dataset(str(folder))
+
+
+def test_blender_follows_its_frames_list(tmp_path):
+    """Frames listed out of name order keep their own camera."""
+    ds = ring_dataset(tmp_path)
+    folder = tmp_path / 'blender'
+    write_dataset(ds, str(folder), 'blender')
+    meta = json.loads((folder / 'transforms.json').read_text())
+    meta['frames'] = meta['frames'][::-1]
+    (folder / 'transforms.json').write_text(json.dumps(meta))
+    back = load_dataset(str(folder))
+    assert back.names == [f'v{i}.png' for i in reversed(range(12))]
+    assert np.abs(back.images[:, 0, 0, 0] - np.arange(12)[::-1] / 12).max() <= 0.5 / 255 + 1e-6
+    assert np.abs(back.c2w - ds.c2w[::-1]).max() < 1e-5
+
+
+# ------------------------------------------------------- container and poses
+def test_inverted_container_is_refused(written, tmp_path):
+    folder = mutable(written, tmp_path, 'blender')
+    box = trimesh.load(folder / 'container.ply', process=False)
+    box.invert()
+    box.export(folder / 'container.ply')
+    with pytest.raises(ValueError, match=r"container.ply: container normals point inward "
+                                         r"\(signed volume -0.48\)"):
+        load_dataset(str(folder))
+
+
+def _edit_poses(folder, edit):
+    meta = json.loads((folder / 'transforms.json').read_text())
+    for i, frame in enumerate(meta['frames']):
+        frame['transform_matrix'] = edit(i, np.array(frame['transform_matrix'])).tolist()
+    (folder / 'transforms.json').write_text(json.dumps(meta))
+
+
+@pytest.mark.parametrize('edit, message', [
+    # OpenCV axes written where OpenGL's are expected: the camera looks away.
+    (lambda i, m: m @ np.diag([1.0, -1.0, -1.0, 1.0]), r"v0.png: view 0: the container centre is behind"),
+    # World-to-camera given as camera-to-world.
+    (lambda i, m: np.linalg.inv(m), r"view 0: the container centre (is behind|projects to)"),
+    # One view turned around.
+    (lambda i, m: m @ np.diag([-1.0, 1.0, -1.0, 1.0]) if i == 2 else m,
+     r"v2.png: view 2: the container centre is behind"),
+    # Cameras 100x further away: the container is a speck.
+    (lambda i, m: np.vstack([np.hstack([m[:3, :3], 100 * m[:3, 3:]]), m[3]]),
+     r"view 0: the container spans about 0.06.* pixels"),
+    # A camera inside the container.
+    (lambda i, m: np.vstack([np.hstack([m[:3, :3], [[0.1], [0.0], [0.0]]]), m[3]]) if i == 1 else m,
+     r"v1.png: view 1: the camera at \[0.1, 0.0, 0.0\] is inside the container"),
+    (lambda i, m: m * np.array([[-1, 1, 1, 1]] * 3 + [[1, 1, 1, 1]]),
+     r"frames\[0\]: transform_matrix: rotation part has determinant -1, a mirror"),
+])
+def test_mis_posed_views_are_named(written, tmp_path, edit, message):
+    folder = mutable(written, tmp_path, 'blender')
+    _edit_poses(folder, edit)
+    with pytest.raises(ValueError, match=message):
+        load_dataset(str(folder))
+
+
+def test_mask_disagreeing_with_the_projection(written, tmp_path):
+    folder = mutable(written, tmp_path, 'neus')
+    write_png(str(folder / 'mask' / '001.png'), np.zeros((H, W)))
+    write_png(str(folder / 'mask' / '001.png'), np.pad(np.ones((3, 3)), ((0, H - 3), (0, W - 3))))
+    with pytest.raises(ValueError, match=r"001.png: view 1: the mask overlaps the container's "
+                                         r"projection by IoU 0.0"):
+        load_dataset(str(folder))
+
+
+@pytest.mark.parametrize('ior', [1e6, 1.0, 0.5, 'glass'])
+def test_ior_out_of_range(written, tmp_path, ior):
+    folder = mutable(written, tmp_path, 'blender')
+    _edit_json(folder / 'transforms.json', lambda m: m.update(IOR=ior))
+    with pytest.raises(ValueError, match=r"transforms.json: 'IOR' is .*; expected a number in \(1, 3\]"):
+        load_dataset(str(folder))
+
+
+def test_matrix_messages_name_the_defect():
+    from reneus_mi.data.cameras import check_c2w, decompose_projection
+    m = np.eye(4)
+    m[:3, :3] *= [-4.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match=r"where: rotation part has determinant -4, a mirror"):
+        check_c2w(m, 'where')
+    m = np.eye(4)
+    m[2, 1] = np.nan
+    with pytest.raises(ValueError, match=r"world_mat_3: entry \[2\]\[1\] is nan; expected finite"):
+        decompose_projection(m, 'world_mat_3')
+    with pytest.raises(ValueError, match=r"c2w: entry \[2\]\[1\] is nan"):
+        check_c2w(m, 'c2w')

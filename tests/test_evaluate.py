@@ -125,20 +125,23 @@ def test_cli_bad_files_name_the_file(tmp_path, capsys):
     gt = write(trimesh.creation.icosphere(subdivisions=2), tmp_path / 'gt.ply')
     empty = tmp_path / 'empty.ply'
     empty.write_text('')
-    for bad in (str(empty), str(tmp_path / 'missing.obj')):
+
+    def error(argv) -> str:
         with pytest.raises(SystemExit) as e:
-            main([bad, gt])
-        assert bad in str(e.value)
-    with pytest.raises(SystemExit) as e:
-        main([gt, gt, '--postprocess', 'crop'])
-    assert '--container' in str(e.value)
+            main(argv)
+        err = e.value.code
+        assert isinstance(err, str) and '\n' not in err and err.startswith('error: ')
+        return err
+
+    for bad in (str(empty), str(tmp_path / 'missing.obj')):
+        assert bad in error([bad, gt])
+    assert '--container' in error([gt, gt, '--postprocess', 'crop'])
     # An open container has no inside.
     open_box = trimesh.creation.box()
     open_box.update_faces(np.arange(len(open_box.faces)) > 0)
     path = write(open_box, tmp_path / 'open.ply')
-    with pytest.raises(SystemExit) as e:
-        main([gt, gt, '--container', path])
-    assert path in str(e.value) and 'closed' in str(e.value)
+    err = error([gt, gt, '--container', path])
+    assert path in err and 'closed' in err
 
 
 def test_load_mesh_rejects_a_point_cloud(tmp_path):

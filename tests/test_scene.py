@@ -8,6 +8,7 @@ import pytest
 import trimesh
 
 from reneus_mi.data import Dataset, write_dataset
+from reneus_mi.data.container import container_masks
 from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.scene import main, sensor_dict, write_scene
 
@@ -19,9 +20,11 @@ def make_dataset(folder, ior=1.5) -> Dataset:
     mesh = os.path.join(folder, 'meshes', 'box.ply')
     os.makedirs(os.path.dirname(mesh), exist_ok=True)
     trimesh.creation.box(extents=(1.0, 0.8, 0.6)).apply_translation((0.2, -0.1, 0.05)).export(mesh)
-    return Dataset(images=np.full((1, H, W, 3), 0.5, np.float32), masks=np.ones((1, H, W), bool),
-                   K=intrinsics(15.0, 15.0, 9.25, 4.5)[None],
-                   c2w=look_at((2.5, -1.5, 1.2), target=(0.1, 0.0, 0.1))[None],
+    K = intrinsics(15.0, 15.0, 9.25, 4.5)[None]
+    c2w = look_at((2.5, -1.5, 1.2), target=(0.1, 0.0, 0.1))[None]
+    # The loader checks masks against the container's projection.
+    return Dataset(images=np.full((1, H, W, 3), 0.5, np.float32),
+                   masks=container_masks(mesh, K, c2w, H, W), K=K, c2w=c2w,
                    names=['a.png'], root=str(folder), container=mesh, ior=ior)
 
 
@@ -112,7 +115,38 @@ def test_cli(tmp_path, capsys):
     assert [(e.tag, e.get('value')) for e in integ] == [('integer', '5'), ('boolean', 'true')]
     assert tuple(mi.load_file(str(xml)).sensors()[0].film().size()) == (W, H)
 
+    # The reneus integrator's settings are typed as its configuration declares them.
+    reneus = tmp_path / 'reneus.xml'
+    main([str(tmp_path / 'data'), '-o', str(reneus), '--preset', 'cpu', '--set', 'max_depth=3',
+          '--set', 'upsample_s=32', '--set', 'field_hidden=48', '--set', 'terminal=black'])
+    integ = ET.parse(reneus).getroot().find('integrator')
+    props = {e.get('name'): (e.tag, e.get('value')) for e in integ}
+    assert props['preset'] == ('string', 'cpu') and props['max_depth'] == ('integer', '3')
+    assert props['upsample_s'] == ('float', '32.0') and props['field_hidden'] == ('integer', '48')
+    assert props['terminal'] == ('string', 'black')
+    for bad, message in (('n_coarse=many', 'n_coarse=many: expected int'),
+                         ('max_detph=3', 'max_detph: not a setting of the reneus integrator')):
+        with pytest.raises(SystemExit) as exit_info:
+            main([str(tmp_path / 'data'), '-o', str(tmp_path / 'bad.xml'), '--set', bad])
+        assert message in str(exit_info.value.code)
+        assert not (tmp_path / 'bad.xml').exists()
+
     with pytest.raises(SystemExit) as exit_info:
         main([str(tmp_path / 'absent'), '-o', str(tmp_path / 'other.xml')])
-    assert exit_info.value.code == 2 and 'dataset folder is missing' in capsys.readouterr().err
+    assert str(exit_info.value.code).startswith('error: ') and 'dataset folder is missing' in str(exit_info.value.code)
     assert not (tmp_path / 'other.xml').exists()
+
+
+def test_container_parts_apart_or_hollow_pass_overlapping_fail():
+    import trimesh
+    from reneus_mi.render import _check_disjoint
+    outer = trimesh.creation.box(extents=(2, 2, 2))
+    apart = trimesh.creation.box().apply_translation((5, 0, 0))
+    cavity = trimesh.creation.box()
+    cavity.invert()
+    _check_disjoint([outer, apart], 'scene.xml')
+    _check_disjoint([outer, cavity], 'scene.xml')      # a hollow vessel
+    with pytest.raises(ValueError, match='scene.xml: container parts overlap'):
+        _check_disjoint([outer, trimesh.creation.box()], 'scene.xml')    # glass in glass
+    with pytest.raises(ValueError, match='container parts overlap'):
+        _check_disjoint([outer, trimesh.creation.box().apply_translation((0.8, 0.8, 0.8))], 's')

@@ -3,14 +3,17 @@
 :func:`load_dataset` detects the format of a folder and returns a
 :class:`Dataset`; :func:`write_dataset` writes one in either format. The
 formats are described in :mod:`reneus_mi.data.blender` and
-:mod:`reneus_mi.data.neus`, the ReNeuS keys they share in
+:mod:`reneus_mi.data.neus_format`, the ReNeuS keys they share in
 :mod:`reneus_mi.data.dataset`.
 """
 from __future__ import annotations
 
 import os
 
-from reneus_mi.data import blender, neus
+from reneus_mi.errors import ReneusError
+from reneus_mi import guards
+from reneus_mi.data import blender
+from reneus_mi.data import neus_format as neus
 from reneus_mi.data.dataset import Dataset, check_writable
 
 FORMATS = {'blender': blender, 'neus': neus}
@@ -29,13 +32,13 @@ def load_dataset(path: str, *, need_container: bool = True) -> Dataset:
     if os.path.basename(path) in (*blender.TRANSFORMS_FILES, neus.CAMERAS_FILE):
         path = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(path):
-        raise ValueError(f"{path}: dataset folder is missing (expected a folder with "
+        raise ReneusError(f"{path}: dataset folder is missing (expected a folder with "
                          f"{blender.TRANSFORMS_FILES[0]} or {neus.CAMERAS_FILE})")
     for module in (blender, neus):
         found = module.find(path)
         if found is not None:
             return module.read(found, need_container=need_container)
-    raise ValueError(f"{path}: unknown dataset format (expected {blender.TRANSFORMS_FILES[0]} "
+    raise ReneusError(f"{path}: unknown dataset format (expected {blender.TRANSFORMS_FILES[0]} "
                      f"or {neus.CAMERAS_FILE} in the folder)")
 
 
@@ -43,10 +46,13 @@ def write_dataset(ds: Dataset, out_dir: str, fmt: str) -> None:
     """Write ``ds`` into folder ``out_dir`` as ``fmt`` ('blender' or 'neus').
 
     Images become 8-bit PNGs and the meshes are copied beside the metadata.
-    Everything is checked before the first file is written.
+    ``out_dir`` must be new or empty. Everything is checked before the first
+    file is written.
     """
     if fmt not in FORMATS:
-        raise ValueError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+        raise ReneusError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
     check_writable(ds, out_dir)
+    # Never over files this call did not write: the folder is new or empty.
+    guards.check_output_dir(out_dir, what='dataset folder')
     os.makedirs(out_dir, exist_ok=True)
     FORMATS[fmt].write(ds, out_dir)

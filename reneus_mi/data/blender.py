@@ -24,6 +24,8 @@ import os
 
 import numpy as np
 
+from reneus_mi.errors import ReneusError
+from reneus_mi.io import atomic_write_text
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
                                     has_skew, intrinsics)
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
@@ -51,21 +53,21 @@ def _image_path(root: str, file_path: str, where: str) -> str:
     for ext in IMAGE_EXTENSIONS:
         if os.path.isfile(path + ext):
             return path + ext
-    raise ValueError(f"{where}: image '{file_path}' is missing (looked for {path} with and "
+    raise ReneusError(f"{where}: image '{file_path}' is missing (looked for {path} with and "
                      f"without the extensions {', '.join(IMAGE_EXTENSIONS[:4])})")
 
 
 def _number(cam: dict, key: str, where: str) -> float:
     value = cam[key]
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise ValueError(f"{where}: '{key}' must be a number, got {value!r}")
+        raise ReneusError(f"{where}: '{key}' must be a number, got {value!r}")
     return float(value)
 
 
 def _intrinsics(cam: dict, width: int, height: int, where: str) -> np.ndarray:
     for key, size in (('w', width), ('h', height)):
         if key in cam and _number(cam, key, where) != size:
-            raise ValueError(f"{where}: '{key}' is {cam[key]}, but the image is {width}x{height}")
+            raise ReneusError(f"{where}: '{key}' is {cam[key]}, but the image is {width}x{height}")
     if 'fl_x' in cam:
         fx = _number(cam, 'fl_x', where)
         fy = _number(cam, 'fl_y', where) if 'fl_y' in cam else fx
@@ -74,7 +76,7 @@ def _intrinsics(cam: dict, width: int, height: int, where: str) -> np.ndarray:
         fy = (focal_from_fov(_number(cam, 'camera_angle_y', where), height)
               if 'camera_angle_y' in cam else fx)
     else:
-        raise ValueError(f"{where}: expected intrinsics 'camera_angle_x' or 'fl_x'")
+        raise ReneusError(f"{where}: expected intrinsics 'camera_angle_x' or 'fl_x'")
     cx = _number(cam, 'cx', where) if 'cx' in cam else 0.5 * width
     cy = _number(cam, 'cy', where) if 'cy' in cam else 0.5 * height
     return check_K(intrinsics(fx, fy, cx, cy), where)
@@ -87,16 +89,16 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
         with open(path) as f:
             meta = json.load(f)
     except (OSError, json.JSONDecodeError) as err:
-        raise ValueError(f"{path}: unreadable JSON ({err})") from None
+        raise ReneusError(f"{path}: unreadable JSON ({err})") from None
     frames = meta.get('frames') if isinstance(meta, dict) else None
     if not isinstance(frames, list) or not frames:
-        raise ValueError(f"{path}: expected a non-empty list 'frames'")
+        raise ReneusError(f"{path}: expected a non-empty list 'frames'")
     top = {k: meta[k] for k in _INTRINSIC_KEYS if k in meta}
     images, masks, Ks, c2ws, files = [], [], [], [], []
     for i, frame in enumerate(frames):
         where = f"{path}: frames[{i}]"
         if not isinstance(frame, dict) or 'file_path' not in frame or 'transform_matrix' not in frame:
-            raise ValueError(f"{where}: expected 'file_path' and 'transform_matrix'")
+            raise ReneusError(f"{where}: expected 'file_path' and 'transform_matrix'")
         file = _image_path(root, str(frame['file_path']), where)
         rgb, alpha = read_image(file)
         cam = {**top, **{k: frame[k] for k in _INTRINSIC_KEYS if k in frame}}
@@ -104,7 +106,7 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
         try:
             gl = np.asarray(frame['transform_matrix'], dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError(f"{where}: 'transform_matrix' must be a 4x4 matrix of numbers") from None
+            raise ReneusError(f"{where}: 'transform_matrix' must be a 4x4 matrix of numbers") from None
         c2ws.append(check_c2w(gl, f"{where}: transform_matrix") @ OPENGL_FROM_OPENCV)
         images.append(rgb)
         masks.append(None if alpha is None else alpha > 0.5)
@@ -118,7 +120,7 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
 def write(ds: Dataset, out_dir: str) -> None:
     """Write ``ds`` as ``out_dir/transforms.json`` plus ``images/*.png`` (checked beforehand)."""
     if np.any(has_skew(ds.K)):
-        raise ValueError(f"{ds.root}: K has a skew term, which transforms.json cannot store")
+        raise ReneusError(f"{ds.root}: K has a skew term, which transforms.json cannot store")
     os.makedirs(os.path.join(out_dir, 'images'), exist_ok=True)
     shared = bool(np.all(ds.K == ds.K[0]))
 
@@ -144,5 +146,6 @@ def write(ds: Dataset, out_dir: str) -> None:
             frame.update(camera(ds.K[i]))
         frames.append(frame)
     meta['frames'] = frames
-    with open(os.path.join(out_dir, 'transforms.json'), 'w') as f:
-        json.dump(meta, f, indent=2, default=float)
+    # Written last and atomically: a folder with transforms.json is a whole dataset.
+    atomic_write_text(os.path.join(out_dir, 'transforms.json'),
+                      json.dumps(meta, indent=2, default=float))

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from reneus_mi.errors import ReneusError
+
 #: Right-multiplying a c2w matrix by this swaps OpenCV and OpenGL camera axes.
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 #: Right-multiplying a c2w matrix by this swaps OpenCV and Mitsuba camera axes.
@@ -53,7 +55,7 @@ def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> np.ndarray:
     forward = np.asarray(target, dtype=np.float64) - eye
     right = np.cross(forward, up)
     if np.linalg.norm(forward) == 0 or np.linalg.norm(right) < 1e-12 * np.linalg.norm(forward):
-        raise ValueError(f"look_at: eye {eye.tolist()} must differ from target {target} and the "
+        raise ReneusError(f"look_at: eye {eye.tolist()} must differ from target {target} and the "
                          f"viewing direction must not be parallel to up {up}")
     forward /= np.linalg.norm(forward)
     right /= np.linalg.norm(right)
@@ -62,23 +64,38 @@ def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> np.ndarray:
     return c2w
 
 
+def _check_finite(m: np.ndarray, where: str) -> None:
+    bad = np.argwhere(~np.isfinite(m))
+    if len(bad):
+        i, j = bad[0]
+        raise ReneusError(f"{where}: entry [{i}][{j}] is {m[i, j]}; expected finite numbers")
+
+
 def check_c2w(c2w: np.ndarray, where: str) -> np.ndarray:
-    """Return ``c2w`` as a float64 4x4 rigid transform, or raise ``ValueError``.
+    """Return ``c2w`` as a float64 4x4 rigid transform, or raise naming what is wrong.
 
     A 3x4 matrix is padded with ``[0, 0, 0, 1]``. ``where`` names the file and
     field in the message.
     """
     m = np.asarray(c2w, dtype=np.float64)
-    if m.shape not in ((3, 4), (4, 4)) or not np.all(np.isfinite(m)):
-        raise ValueError(f"{where}: expected a finite 4x4 (or 3x4) camera matrix, got {m.tolist()}")
+    if m.shape not in ((3, 4), (4, 4)):
+        raise ReneusError(f"{where}: expected a 4x4 (or 3x4) camera matrix, got shape {m.shape}")
+    _check_finite(m, where)
     if m.shape == (3, 4):
         m = np.vstack([m, [0.0, 0.0, 0.0, 1.0]])
     rot = m[:3, :3]
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]) or np.linalg.cond(m) > _MAX_COND:
-        raise ValueError(f"{where}: camera matrix is not invertible: {m.tolist()}")
-    if not np.allclose(rot.T @ rot, np.eye(3), atol=_ROTATION_TOL) or np.linalg.det(rot) < 0:
-        raise ValueError(f"{where}: camera matrix is not a rotation plus translation "
-                         f"(scaled, sheared or mirrored): {m.tolist()}")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ReneusError(f"{where}: last row is {m[3].tolist()}; expected [0, 0, 0, 1]")
+    if np.linalg.cond(m) > _MAX_COND:
+        raise ReneusError(f"{where}: camera matrix is not invertible (rotation part has "
+                          f"determinant {np.linalg.det(rot):.3g}): {m.tolist()}")
+    det = np.linalg.det(rot)
+    if det < 0:
+        raise ReneusError(f"{where}: rotation part has determinant {det:.4g}, a mirror; expected "
+                          "a rotation (determinant +1): is one axis flipped?")
+    if not np.allclose(rot.T @ rot, np.eye(3), atol=_ROTATION_TOL):
+        raise ReneusError(f"{where}: camera matrix is not a rotation plus translation "
+                          f"(scaled or sheared: determinant {det:.4g}, expected 1): {m.tolist()}")
     return m
 
 
@@ -87,7 +104,7 @@ def check_K(K: np.ndarray, where: str) -> np.ndarray:
     k = np.asarray(K, dtype=np.float64)
     if (k.shape != (3, 3) or not np.all(np.isfinite(k)) or not np.allclose(k[2], [0, 0, 1])
             or k[0, 0] <= 0 or k[1, 1] <= 0):
-        raise ValueError(f"{where}: expected an intrinsic matrix [[fx,s,cx],[0,fy,cy],[0,0,1]] "
+        raise ReneusError(f"{where}: expected an intrinsic matrix [[fx,s,cx],[0,fy,cy],[0,0,1]] "
                          f"with fx, fy > 0, got {k.tolist()}")
     return k
 
@@ -109,12 +126,13 @@ def rq(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def decompose_projection(P: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
     """Split a 3x4 (or 4x4) projection ``K [R | t]`` into ``K`` and an OpenCV c2w."""
     p = np.asarray(P, dtype=np.float64)
-    if p.shape not in ((3, 4), (4, 4)) or not np.all(np.isfinite(p)):
-        raise ValueError(f"{where}: expected a finite 4x4 projection matrix, got shape {p.shape}")
+    if p.shape not in ((3, 4), (4, 4)):
+        raise ReneusError(f"{where}: expected a 4x4 projection matrix, got shape {p.shape}")
+    _check_finite(p, where)
     p = p[:3]
     m = p[:, :3]
     if np.linalg.cond(m) > _MAX_COND:
-        raise ValueError(f"{where}: camera matrix is not invertible: {p.tolist()}")
+        raise ReneusError(f"{where}: camera matrix is not invertible: {p.tolist()}")
     # A projection is defined up to scale: pick the sign that makes R proper.
     if np.linalg.det(m) < 0:
         p = -p
@@ -145,10 +163,10 @@ def pixel_rays(K: np.ndarray, c2w: np.ndarray, view: np.ndarray,
     """
     px = np.asarray(px)
     if px.ndim != 2 or px.shape[1] != 2:
-        raise ValueError(f"pixel coordinates: expected shape (M, 2), got {px.shape}")
+        raise ReneusError(f"pixel coordinates: expected shape (M, 2), got {px.shape}")
     view = np.broadcast_to(np.asarray(view, dtype=np.int64), (px.shape[0],))
     if view.size and (view.min() < 0 or view.max() >= len(K)):
-        raise ValueError(f"view indices: expected values in [0, {len(K)}), got "
+        raise ReneusError(f"view indices: expected values in [0, {len(K)}), got "
                          f"[{view.min()}, {view.max()}]")
     uv1 = np.concatenate([px + 0.5, np.ones((px.shape[0], 1))], axis=1)
     d_cam = np.einsum('mij,mj->mi', np.linalg.inv(K)[view], uv1)

@@ -11,37 +11,23 @@ import os
 
 import mitsuba as mi
 import numpy as np
-import trimesh
 
 from reneus_mi.data.cameras import pixel_rays
+from reneus_mi.errors import ReneusError
+from reneus_mi.mesh import load_container
 
 #: Mesh formats that both trimesh and Mitsuba read.
 MESH_EXTENSIONS = ('.ply', '.obj')
+
+__all__ = ['MESH_EXTENSIONS', 'mesh_type', 'load_container', 'bounding_sphere', 'container_masks']
 
 
 def mesh_type(path: str) -> str:
     """Mitsuba shape plugin name (``ply``/``obj``) for a mesh file, or raise."""
     ext = os.path.splitext(path)[1].lower()
     if ext not in MESH_EXTENSIONS:
-        raise ValueError(f"{path}: expected a mesh file ending in {' or '.join(MESH_EXTENSIONS)}")
+        raise ReneusError(f"{path}: expected a mesh file ending in {' or '.join(MESH_EXTENSIONS)}")
     return ext[1:]
-
-
-def load_container(path: str) -> trimesh.Trimesh:
-    """Load a container mesh and check that it is closed, or raise ``ValueError``."""
-    mesh_type(path)
-    if not os.path.isfile(path):
-        raise ValueError(f"{path}: container mesh file is missing")
-    try:
-        mesh = trimesh.load(path, force='mesh', process=True)
-    except Exception as err:  # trimesh raises many types for corrupt files
-        raise ValueError(f"{path}: unreadable container mesh ({err})") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f"{path}: container mesh has no triangles")
-    if not mesh.is_watertight:
-        raise ValueError(f"{path}: container mesh is not closed (not watertight); "
-                         "a container must enclose a volume")
-    return mesh
 
 
 def bounding_sphere(path: str) -> tuple[np.ndarray, float]:

@@ -1,6 +1,6 @@
 """The in-memory dataset: posed photographs of an object inside a container.
 
-Both file formats (:mod:`reneus_mi.data.blender`, :mod:`reneus_mi.data.neus`)
+Both file formats (:mod:`reneus_mi.data.blender`, :mod:`reneus_mi.data.neus_format`)
 read into and write from :class:`Dataset`. The ReNeuS-specific facts that
 neither format has a field for are stored under the same JSON keys in both:
 
@@ -19,6 +19,8 @@ import shutil
 
 import numpy as np
 
+from reneus_mi.errors import ReneusError
+from reneus_mi.data.checks import check_ior, check_views
 from reneus_mi.data.cameras import check_c2w, check_K, pixel_rays
 from reneus_mi.data.container import bounding_sphere, container_masks, load_container, mesh_type
 
@@ -81,60 +83,57 @@ class Dataset:
             return np.array(self.scale_mat[:3, 3], dtype=np.float64), float(self.scale_mat[0, 0])
         if self.container is not None:
             return bounding_sphere(self.container)
-        raise ValueError(f"{self.root}: dataset has neither a NeuS scale_mat nor a container "
+        raise ReneusError(f"{self.root}: dataset has neither a NeuS scale_mat nor a container "
                          "mesh, so the region to reconstruct is unknown")
 
     def validate(self) -> None:
         """Raise ``ValueError`` unless every array has the documented shape and type."""
         n = len(self.images)
         if self.images.ndim != 4 or self.images.shape[-1] != 3 or n == 0:
-            raise ValueError(f"{self.root}: images: expected shape (N,H,W,3) with N > 0, "
+            raise ReneusError(f"{self.root}: images: expected shape (N,H,W,3) with N > 0, "
                              f"got {self.images.shape}")
         if not np.all((self.images >= 0) & (self.images <= 1)):
-            raise ValueError(f"{self.root}: images: expected values in [0, 1]")
+            raise ReneusError(f"{self.root}: images: expected values in [0, 1]")
         expected = {'masks': (self.masks, self.images.shape[:3]), 'K': (self.K, (n, 3, 3)),
                     'c2w': (self.c2w, (n, 4, 4))}
         for field, (value, shape) in expected.items():
             if np.shape(value) != shape:
-                raise ValueError(f"{self.root}: {field}: expected shape {shape}, "
+                raise ReneusError(f"{self.root}: {field}: expected shape {shape}, "
                                  f"got {np.shape(value)}")
         if self.masks.dtype != bool:
-            raise ValueError(f"{self.root}: masks: expected dtype bool, got {self.masks.dtype}")
+            raise ReneusError(f"{self.root}: masks: expected dtype bool, got {self.masks.dtype}")
         if len(self.names) != n or len(set(self.names)) != n:
-            raise ValueError(f"{self.root}: names: expected {n} distinct names, got {self.names}")
+            raise ReneusError(f"{self.root}: names: expected {n} distinct names, got {self.names}")
         for i in range(n):
             check_K(self.K[i], f"{self.root}: K[{i}]")
             check_c2w(self.c2w[i], f"{self.root}: c2w[{i}]")
         if self.scale_mat is not None and np.shape(self.scale_mat) != (4, 4):
-            raise ValueError(f"{self.root}: scale_mat: expected shape (4, 4), "
+            raise ReneusError(f"{self.root}: scale_mat: expected shape (4, 4), "
                              f"got {np.shape(self.scale_mat)}")
-        if self.ior is not None and not self.ior > 0:
-            raise ValueError(f"{self.root}: ior: expected a positive number, got {self.ior}")
+        if self.ior is not None:
+            check_ior(self.ior, f"{self.root}: ior")
 
 
 def read_extras(meta: dict, root: str, where: str) -> dict:
     """Parse the ReNeuS keys of a metadata dict (see the module docstring)."""
     out = {}
-    ior = meta.get('IOR')
-    if ior is not None:
-        if isinstance(ior, bool) or not isinstance(ior, (int, float)) or not ior > 0:
-            raise ValueError(f"{where}: 'IOR' must be a positive number, got {ior!r}")
-        out['ior'] = float(ior)
+    if meta.get('IOR') is not None:
+        out['ior'] = check_ior(meta['IOR'], where)
     for key, field in (('mesh_outside', 'container'), ('mesh_inside', 'gt_mesh')):
         rel = meta.get(key)
         if rel is None:
             continue
         if not isinstance(rel, str):
-            raise ValueError(f"{where}: '{key}' must be a path string, got {rel!r}")
+            raise ReneusError(f"{where}: '{key}' must be a path string, got {rel!r}")
         path = os.path.normpath(os.path.join(root, rel))
         mesh_type(path)
         if not os.path.isfile(path):
-            raise ValueError(f"{where}: '{key}' names {path}, which does not exist")
+            raise ReneusError(f"{where}: '{key}' names {path}, which does not exist")
         out[field] = path
     if 'scale_mat' in meta:
         scale_mat = np.asarray(meta['scale_mat'], dtype=np.float64)
         if scale_mat.shape != (4, 4):
-            raise ValueError(f"{where}: 'scale_mat' must be a 4x4 matrix, got {meta['scale_mat']!r}")
+            raise ReneusError(f"{where}: 'scale_mat' must be a 4x4 matrix, got {meta['scale_mat']!r}")
         out['scale_mat'] = scale_mat
     return out
 
@@ -161,15 +160,15 @@ def check_writable(ds: Dataset, out_dir: str) -> None:
     ds.validate()
     stems = [os.path.splitext(name)[0] for name in ds.names]
     if len(set(stems)) != len(stems):
-        raise ValueError(f"{ds.root}: names: image names must differ without their extension, "
+        raise ReneusError(f"{ds.root}: names: image names must differ without their extension, "
                          f"got {ds.names}")
     for path in (ds.container, ds.gt_mesh):
         if path is not None:
             mesh_type(path)
             if not os.path.isfile(path):
-                raise ValueError(f"{path}: mesh file is missing")
+                raise ReneusError(f"{path}: mesh file is missing")
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise ValueError(f"{out_dir}: expected a folder to write the dataset into, found a file")
+        raise ReneusError(f"{out_dir}: expected a folder to write the dataset into, found a file")
 
 
 def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.ndarray,
@@ -186,17 +185,18 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
     height, width = images[0].shape[:2]
     for img, path in zip(images, files):
         if img.shape[:2] != (height, width):
-            raise ValueError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, but "
+            raise ReneusError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, but "
                              f"{files[0]} is {width}x{height}; all images must have one size")
     for mask, path in zip(masks, files):
         if mask is not None and mask.shape != (height, width):
-            raise ValueError(f"mask of {path}: is {mask.shape[1]}x{mask.shape[0]}, "
+            raise ReneusError(f"mask of {path}: is {mask.shape[1]}x{mask.shape[0]}, "
                              f"expected the image size {width}x{height}")
     if container is None and need_container:
-        raise ValueError(f"{meta_file}: dataset has no container mesh "
+        raise ReneusError(f"{meta_file}: dataset has no container mesh "
                          "(expected a 'mesh_outside' entry naming a .ply/.obj file)")
     if container is not None:
-        load_container(container)
+        check_views(load_container(container), np.asarray(K), np.asarray(c2w), height, width,
+                    files, {i: m for i, m in enumerate(masks) if m is not None})
     missing = [i for i, m in enumerate(masks) if m is None]
     if missing:
         if container is not None:

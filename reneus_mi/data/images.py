@@ -11,6 +11,9 @@ import os
 import mitsuba as mi
 import numpy as np
 
+from reneus_mi.errors import ReneusError
+from reneus_mi.io import atomic_path
+
 #: File extensions tried, in this order, for a NeRF ``file_path`` without one.
 IMAGE_EXTENSIONS = ('.png', '.jpg', '.jpeg', '.exr', '.PNG', '.JPG', '.JPEG', '.EXR')
 
@@ -23,16 +26,16 @@ def read_image(path: str) -> tuple[np.ndarray, np.ndarray | None]:
     Grey images are expanded to RGB; ``alpha`` is None when the file has none.
     """
     if not os.path.isfile(path):
-        raise ValueError(f"{path}: image file is missing")
+        raise ReneusError(f"{path}: image file is missing")
     try:
         bmp = mi.Bitmap(path)
         has_alpha = bmp.pixel_format().name in _WITH_ALPHA
         rgba = np.array(bmp.convert(mi.Bitmap.PixelFormat.RGBA, mi.Struct.Type.Float32,
                                     srgb_gamma=True), dtype=np.float32)
     except RuntimeError as err:
-        raise ValueError(f"{path}: unreadable image ({err})") from None
+        raise ReneusError(f"{path}: unreadable image ({err})") from None
     if not np.all(np.isfinite(rgba)):
-        raise ValueError(f"{path}: image has non-finite pixel values")
+        raise ReneusError(f"{path}: image has non-finite pixel values")
     # HDR files may exceed 1: the dataset promises display values.
     rgba = np.clip(rgba, 0.0, 1.0)
     return rgba[..., :3], (rgba[..., 3] if has_alpha else None)
@@ -52,4 +55,5 @@ def write_png(path: str, image: np.ndarray) -> None:
     fmt = {1: mi.Bitmap.PixelFormat.Y, 3: mi.Bitmap.PixelFormat.RGB,
            4: mi.Bitmap.PixelFormat.RGBA}[image.shape[-1]]
     u8 = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
-    mi.Bitmap(u8, pixel_format=fmt).write(path)
+    with atomic_path(path) as tmp:
+        mi.Bitmap(u8, pixel_format=fmt).write(tmp)

@@ -3,11 +3,18 @@
 Layout::
 
     DATA_DIR/cameras_sphere.npz   world_mat_i (K [R|t], 4x4), scale_mat_i (4x4)
-    DATA_DIR/image/*.png          view i is the i-th file in sorted order
-    DATA_DIR/mask/*.png           optional container masks, same order
+    DATA_DIR/image/<i>.png        view i: the number in the name is the i of
+                                  world_mat_i (0.png, 000.png, r_000.png ...)
+    DATA_DIR/mask/<i>.png         optional container masks, numbered alike
     DATA_DIR/reneus.json          optional: {"IOR": 1.45,
                                              "mesh_outside": "container.ply",
                                              "mesh_inside": "gt_mesh.ply"}
+
+Views are paired with cameras by the number in the file name, never by the
+text order of the names (``10.png`` sorts before ``2.png``): every image must
+carry exactly one number, the numbers must be distinct and exactly
+``0 ... N-1`` of the camera file's ``world_mat_i``; anything else (``1.png``
+beside ``01.png``, a name without a number, a gap) is an error.
 
 ``world_mat_i`` maps world coordinates (those of the meshes) to pixels;
 ``scale_mat_i`` maps NeuS's unit sphere to world coordinates and must be the
@@ -26,6 +33,8 @@ import numpy as np
 
 from reneus_mi.data.cameras import compose_projection, decompose_projection
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
+from reneus_mi.errors import ReneusError
+from reneus_mi.io import atomic_savez, atomic_write_text
 from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, read_mask, write_png
 
 CAMERAS_FILE = 'cameras_sphere.npz'
@@ -43,12 +52,40 @@ def _list_images(folder: str) -> list[str]:
                   if os.path.splitext(f)[1] in IMAGE_EXTENSIONS)
 
 
+def view_files(folder: str, n: int, cameras: str) -> list[str]:
+    """The image files of ``folder`` in view order 0 ... n-1, by the number in each name.
+
+    ``cameras`` (the camera file) is named in the messages. Raises unless the
+    names carry the numbers 0 ... n-1, once each.
+    """
+    by_index: dict[int, str] = {}
+    for path in _list_images(folder):
+        name = os.path.basename(path)
+        numbers = re.findall(r'\d+', os.path.splitext(name)[0])
+        if len(numbers) != 1:
+            raise ReneusError(f"{path}: expected exactly one view number in the file name "
+                              f"(like 0.png or r_012.png, matching world_mat_i of {cameras}), "
+                              f"found {len(numbers)}")
+        i = int(numbers[0])
+        if i in by_index:
+            raise ReneusError(f"{folder}: {os.path.basename(by_index[i])} and {name} both "
+                              f"name view {i}; expected one file per view")
+        by_index[i] = path
+    if sorted(by_index) != list(range(n)):
+        extra = sorted(set(by_index) - set(range(n)))
+        missing = sorted(set(range(n)) - set(by_index))
+        raise ReneusError(f"{folder}: has {len(by_index)} images, but {cameras} has {n} cameras; "
+                          f"expected the numbers 0 ... {n - 1} of world_mat_i in the file names: "
+                          f"missing {missing[:5]}, unexpected {extra[:5]}")
+    return [by_index[i] for i in range(n)]
+
+
 def _load_npz(path: str) -> dict:
     try:
         with np.load(path) as npz:
             return {k: np.asarray(npz[k]) for k in npz.files}
     except (OSError, ValueError, zipfile.BadZipFile) as err:
-        raise ValueError(f"{path}: unreadable camera file ({err})") from None
+        raise ReneusError(f"{path}: unreadable camera file ({err})") from None
 
 
 def read(path: str, *, need_container: bool = True) -> Dataset:
@@ -58,18 +95,14 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
     n = len([k for k in cams if re.fullmatch(r'world_mat_\d+', k)])
     absent = [f'world_mat_{i}' for i in range(n) if f'world_mat_{i}' not in cams]
     if n == 0 or absent:
-        raise ValueError(f"{path}: expected world_mat_0 ... world_mat_{max(n - 1, 0)}, "
+        raise ReneusError(f"{path}: expected world_mat_0 ... world_mat_{max(n - 1, 0)}, "
                          f"missing {absent or ['world_mat_0']}")
     image_dir = os.path.join(root, 'image')
     if not os.path.isdir(image_dir):
-        raise ValueError(f"{image_dir}: image folder is missing")
-    files = _list_images(image_dir)
-    if len(files) != n:
-        raise ValueError(f"{image_dir}: has {len(files)} images, but {path} has {n} cameras")
+        raise ReneusError(f"{image_dir}: image folder is missing")
+    files = view_files(image_dir, n, path)
     mask_dir = os.path.join(root, 'mask')
-    mask_files = _list_images(mask_dir) if os.path.isdir(mask_dir) else None
-    if mask_files is not None and len(mask_files) != n:
-        raise ValueError(f"{mask_dir}: has {len(mask_files)} masks, but {path} has {n} cameras")
+    mask_files = view_files(mask_dir, n, path) if os.path.isdir(mask_dir) else None
 
     Ks, c2ws = zip(*(decompose_projection(cams[f'world_mat_{i}'], f"{path}: world_mat_{i}")
                      for i in range(n)))
@@ -79,7 +112,7 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
         for i in range(n):
             other = cams.get(f'scale_mat_{i}')
             if other is None or other.shape != (4, 4) or not np.allclose(other, scale_mat):
-                raise ValueError(f"{path}: scale_mat_{i}: expected a 4x4 matrix equal to "
+                raise ReneusError(f"{path}: scale_mat_{i}: expected a 4x4 matrix equal to "
                                  "scale_mat_0 (one normalisation for all views)")
 
     meta_path = os.path.join(root, META_FILE)
@@ -89,9 +122,9 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
             with open(meta_path) as f:
                 meta = json.load(f)
         except (OSError, json.JSONDecodeError) as err:
-            raise ValueError(f"{meta_path}: unreadable JSON ({err})") from None
+            raise ReneusError(f"{meta_path}: unreadable JSON ({err})") from None
         if not isinstance(meta, dict):
-            raise ValueError(f"{meta_path}: expected a JSON object")
+            raise ReneusError(f"{meta_path}: expected a JSON object")
     extras = read_extras(meta, root, meta_path)
     if scale_mat is not None:
         extras['scale_mat'] = scale_mat
@@ -106,18 +139,16 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
 def write(ds: Dataset, out_dir: str) -> None:
     """Write ``ds`` in the NeuS layout into ``out_dir`` (checked beforehand).
 
-    Views are renamed ``000.png``, ``001.png`` ... unless their names already
-    sort in view order, because NeuS orders views by file name.
+    Views are named ``000.png``, ``001.png`` ...: the number is the view's
+    index (see the module docstring).
     """
-    stems = [os.path.splitext(name)[0] for name in ds.names]
-    if sorted(f'{s}.png' for s in stems) != [f'{s}.png' for s in stems]:
-        stems = [f'{i:03d}' for i in range(len(ds))]
+    stems = [f'{i:03d}' for i in range(len(ds))]
     for sub in ('image', 'mask'):
         folder = os.path.join(out_dir, sub)
         stale = (set(map(os.path.basename, _list_images(folder))) - {f'{s}.png' for s in stems}
                  if os.path.isdir(folder) else set())
         if stale:
-            raise ValueError(f"{folder}: holds other images ({', '.join(sorted(stale)[:3])}...) "
+            raise ReneusError(f"{folder}: holds other images ({', '.join(sorted(stale)[:3])}...) "
                              "that NeuS would take for views; write into an empty folder")
     if ds.scale_mat is not None:
         scale_mat = np.asarray(ds.scale_mat, np.float64)
@@ -137,8 +168,8 @@ def write(ds: Dataset, out_dir: str) -> None:
     for i in range(len(ds)):
         cams[f'world_mat_{i}'] = compose_projection(ds.K[i], ds.c2w[i])
         cams[f'scale_mat_{i}'] = scale_mat
-    np.savez(os.path.join(out_dir, CAMERAS_FILE), **cams)
     meta = write_extras(ds, out_dir)
     if meta:
-        with open(os.path.join(out_dir, META_FILE), 'w') as f:
-            json.dump(meta, f, indent=2)
+        atomic_write_text(os.path.join(out_dir, META_FILE), json.dumps(meta, indent=2))
+    # Written last and atomically: a folder with the camera file is a whole dataset.
+    atomic_savez(os.path.join(out_dir, CAMERAS_FILE), **cams)

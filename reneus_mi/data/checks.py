@@ -1,0 +1,107 @@
+"""Does every camera see the container it is said to see?
+
+Mis-posed data trains anyway, or dies deep inside Dr.Jit, unless it is caught
+when it loads. The checks here compare each view with the container mesh,
+which is the one thing of the scene known in world coordinates:
+
+- the camera lies outside the container;
+- the container's centre is in front of the camera (camera-space z > 0:
+  OpenCV axes; a pose given in the OpenGL convention, or a world-to-camera
+  matrix given as camera-to-world, fails here) and projects into the image,
+  with a margin of :data:`FRAME_MARGIN` of the image size;
+- the container is not tiny or far away: its projection spans at least
+  :data:`MIN_EXTENT` of the image;
+- a mask read from a file agrees with the container's projection (IoU at
+  least :data:`MIN_MASK_IOU`), which catches a view paired with another's
+  camera.
+
+Messages name the image file, the view and what was expected.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from reneus_mi.data.cameras import pixel_rays
+from reneus_mi.errors import ReneusError
+
+#: The container centre may project this far (fraction of the image size) outside the image.
+FRAME_MARGIN = 0.25
+#: Smallest apparent diameter of the container, as a fraction of the image's smaller side.
+MIN_EXTENT = 0.02
+#: Smallest intersection-over-union of a given mask and the container's projection.
+MIN_MASK_IOU = 0.5
+#: Pixels per view traced for the mask comparison (a regular subset of the image).
+MASK_SAMPLES = 1 << 16
+#: Accepted range of the container's index of refraction (glass ~1.5, diamond 2.42).
+IOR_RANGE = (1.0, 3.0)
+
+
+def check_ior(ior, where: str) -> float:
+    """The IOR as a float, or raise unless ``1 < ior <= 3``."""
+    if isinstance(ior, bool) or not isinstance(ior, (int, float)) or not (
+            IOR_RANGE[0] < ior <= IOR_RANGE[1]):
+        raise ReneusError(f"{where}: 'IOR' is {ior!r}; expected a number in "
+                          f"({IOR_RANGE[0]:g}, {IOR_RANGE[1]:g}] (glass: about 1.5)")
+    return float(ior)
+
+
+def check_views(container, K: np.ndarray, c2w: np.ndarray, height: int, width: int,
+                files: list[str], given_masks: dict[int, np.ndarray]) -> None:
+    """Raise naming the first view whose camera does not see ``container`` (a trimesh).
+
+    ``files`` name the views; ``given_masks`` maps view indices to masks read
+    from files (computed ones agree by construction).
+    """
+    from reneus_mi.mesh import inside
+    vertices = np.asarray(container.vertices, dtype=np.float64)
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    origins = c2w[:, :3, 3]
+    within = inside(origins, container)
+    if within.any():
+        v = int(np.argmax(within))
+        raise ReneusError(f"{files[v]}: view {v}: the camera at {np.round(origins[v], 4).tolist()} "
+                          "is inside the container; expected every camera outside it")
+    for v in range(len(K)):
+        p = c2w[v, :3, :3].T @ (centre - origins[v])
+        if not p[2] > 0:
+            raise ReneusError(
+                f"{files[v]}: view {v}: the container centre is behind the camera (camera-space "
+                f"z = {p[2]:.3g}); expected it in front (OpenCV axes, camera-to-world). A pose in "
+                "the OpenGL convention or a world-to-camera matrix looks like this")
+        u, w_ = (K[v] @ (p / p[2]))[:2]
+        if not (-FRAME_MARGIN * width <= u <= (1 + FRAME_MARGIN) * width
+                and -FRAME_MARGIN * height <= w_ <= (1 + FRAME_MARGIN) * height):
+            raise ReneusError(
+                f"{files[v]}: view {v}: the container centre projects to pixel "
+                f"({u:.1f}, {w_:.1f}), outside the {width}x{height} image; expected the camera "
+                "to look at the container (is the pose flipped or in another convention?)")
+        extent = 2.0 * radius * K[v, 0, 0] / np.linalg.norm(p)
+        if extent < MIN_EXTENT * min(width, height):
+            raise ReneusError(
+                f"{files[v]}: view {v}: the container spans about {extent:.3g} pixels "
+                f"(radius {radius:.3g} at distance {np.linalg.norm(p):.3g}); expected at least "
+                f"{MIN_EXTENT:.0%} of the image: is the container mesh in the cameras' units?")
+    if given_masks:
+        _check_masks(container, K, c2w, height, width, files, given_masks)
+
+
+def _check_masks(container, K, c2w, height, width, files, given_masks) -> None:
+    import mitsuba as mi
+    from reneus_mi.mesh import mitsuba_mesh
+    scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container)})
+    stride = max(1, int(np.ceil(np.sqrt(height * width / MASK_SAMPLES))))
+    ys, xs = np.mgrid[0:height:stride, 0:width:stride]
+    px = np.stack([xs.ravel(), ys.ravel()], axis=1)
+    for v, mask in given_masks.items():
+        o, d = pixel_rays(K, c2w, v, px)
+        ray = mi.Ray3f(mi.Point3f(*o.T.astype(np.float32)), mi.Vector3f(*d.T.astype(np.float32)))
+        projected = np.array(scene.ray_test(ray)).reshape(ys.shape)
+        given = mask[::stride, ::stride]
+        union = np.sum(projected | given)
+        iou = np.sum(projected & given) / union if union else 1.0
+        if iou < MIN_MASK_IOU:
+            raise ReneusError(
+                f"{files[v]}: view {v}: the mask overlaps the container's projection by IoU "
+                f"{iou:.2f}; expected at least {MIN_MASK_IOU} (is this image paired with another "
+                "view's camera, or the pose wrong?)")

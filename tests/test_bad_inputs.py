@@ -1,0 +1,707 @@
+"""The bad-input catalogue: every command, refused with one line that names the thing.
+
+Each case runs a command's ``main()`` on a bad input and asserts that it ends
+with exactly one line ``error: ...`` (exit status 1, or argparse's 2 for a
+malformed option) naming the file, field or value and what was expected, no
+traceback, and that every file that existed in the watched folders (the
+dataset, the run, the case's own folder) is byte-for-byte unchanged, with no
+new file written. A few cases run the command as a real process to check the
+exit status and stderr of the interpreter itself.
+
+Everything reuses the 12-view 16x16 statuette dataset of ``test_checkpoint``
+and one 2-step run, made once per module; a case copies what it spoils.
+Cases that would train are refused during validation, before any step.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+from reneus_mi import evaluate, extract, optimize, render, scene, synth
+from test_checkpoint import tiny_dataset
+
+TRAIN = ['--iterations', '2', '--checkpoint-every', '1', '--batch-rays', '64', '--warm-up', '1',
+         '--validate-every', '0', '--mesh-resolution', '16', '--quiet']
+
+
+# ------------------------------------------------------------------- helpers
+def snapshot(*folders) -> dict[str, str]:
+    """SHA-256 of every file below ``folders`` (missing folders hold nothing)."""
+    sums = {}
+    for folder in folders:
+        for dirpath, _, names in os.walk(folder):
+            for name in names:
+                path = os.path.join(dirpath, name)
+                with open(path, 'rb') as f:
+                    sums[path] = hashlib.sha256(f.read()).hexdigest()
+    return sums
+
+
+def refused(main, argv, *parts, watch=(), capsys=None, code=1) -> str:
+    """Run ``main(argv)``: it must exit with one error line holding ``parts`` and touch nothing."""
+    before = snapshot(*watch)
+    with pytest.raises(SystemExit) as exit_info:
+        main([str(a) for a in argv])
+    if isinstance(exit_info.value.code, str):
+        message, status = exit_info.value.code, 1
+    else:  # argparse prints usage and the error itself
+        status = exit_info.value.code
+        lines = capsys.readouterr().err.strip().splitlines()
+        errors = [line for line in lines if 'error:' in line]
+        assert len(errors) == 1, lines
+        message = errors[0]
+    assert status == code
+    assert 'error: ' in message and '\n' not in message and 'Traceback' not in message, message
+    for part in parts:
+        assert str(part) in message, f'{part!r} not in {message!r}'
+    after = snapshot(*watch)
+    assert after == before, (f'changed: {sorted(k for k in before if before[k] != after.get(k))}, '
+                             f'new: {sorted(set(after) - set(before))}')
+    return message
+
+
+def process(module: str, *args) -> subprocess.CompletedProcess:
+    env = {**os.environ, 'RENEUS_VARIANT': 'llvm_ad_rgb'}
+    return subprocess.run([sys.executable, '-m', f'reneus_mi.{module}', *map(str, args)], env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def one_error_line(proc, *parts) -> None:
+    assert proc.returncode == 1, proc.stderr
+    assert 'Traceback' not in proc.stderr
+    lines = [line for line in proc.stderr.strip().splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith('error: '), proc.stderr
+    for part in parts:
+        assert str(part) in lines[0], f'{part!r} not in {lines[0]!r}'
+
+
+@pytest.fixture
+def small_machine(monkeypatch):
+    """8 GiB of memory, whatever this machine has: size limits do not depend on the host."""
+    from reneus_mi import guards
+    monkeypatch.setattr(guards, 'physical_memory', lambda: 8 * 2**30)
+
+
+# ------------------------------------------------------------------ fixtures
+@pytest.fixture(scope='module')
+def world(tmp_path_factory):
+    """The tiny dataset (Blender and NeuS), its scene, a 2-step run and its checkpoint."""
+    root = tmp_path_factory.getbasetemp() / 'tiny_statuette'
+    xml = tiny_dataset(root)
+    run = tmp_path_factory.mktemp('bad_inputs') / 'run'
+    assert optimize.main([xml, '-o', str(run), *TRAIN]) == 0
+    return {'root': str(root), 'scene': xml, 'data': os.path.join(root, 'box'),
+            'neus': os.path.join(root, 'box_neus'), 'run': str(run),
+            'checkpoint': str(run / 'checkpoint.npz'), 'gt': os.path.join(root, 'gt.ply')}
+
+
+@pytest.fixture
+def data(world, tmp_path):
+    """A spoilable copy of the Blender dataset."""
+    folder = tmp_path / 'data'
+    shutil.copytree(world['data'], folder)
+    return folder
+
+
+@pytest.fixture
+def run_copy(world, tmp_path):
+    folder = tmp_path / 'run'
+    shutil.copytree(world['run'], folder)
+    return folder
+
+
+def edit_frames(folder, edit):
+    path = folder / 'transforms.json'
+    meta = json.loads(path.read_text())
+    edit(meta)
+    path.write_text(json.dumps(meta))
+
+
+def edit_poses(folder, edit):
+    def each(meta):
+        for i, frame in enumerate(meta['frames']):
+            frame['transform_matrix'] = edit(i, np.array(frame['transform_matrix'])).tolist()
+    edit_frames(folder, each)
+
+
+def transform_mesh(path, matrix=None, invert=False):
+    mesh = trimesh.load(path, force='mesh', process=False)
+    if matrix is not None:
+        mesh.apply_transform(matrix)
+    if invert:
+        mesh.invert()
+    mesh.export(path)
+
+
+def train(world, data, tmp_path, *extra):
+    """optimize on ``data`` into a fresh folder (watched: the data and tmp_path)."""
+    return [world['scene'], '--data', data, '-o', tmp_path / 'out', *TRAIN, *extra]
+
+
+# ===================================================================== optimize
+def test_optimize_output_is_the_dataset_folder(world, tmp_path):
+    """Harmful 3: validation renders once overwrote the photographs."""
+    refused(optimize.main, [world['scene'], '-o', world['data'], *TRAIN],
+            world['data'], 'dataset', 'expected', watch=[world['data']])
+
+
+def test_optimize_output_inside_the_dataset_folder(world):
+    refused(optimize.main, [world['scene'], '-o', os.path.join(world['data'], 'run'), *TRAIN],
+            'lies in the dataset folder', watch=[world['data']])
+
+
+def test_optimize_output_holding_other_files(world, tmp_path):
+    (tmp_path / 'mine.txt').write_text('keep')
+    refused(optimize.main, [world['scene'], '-o', tmp_path, *TRAIN],
+            str(tmp_path), 'is not empty (holds mine.txt)', watch=[tmp_path])
+
+
+def test_optimize_output_under_a_file(world, tmp_path):
+    (tmp_path / 'file').write_text('x')
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'file' / 'out', *TRAIN],
+            'is a file, expected a folder', watch=[tmp_path])
+
+
+def test_optimize_batch_beyond_memory(world, tmp_path):
+    """Harmful 5: 10^9 rays grew to 24 GB and were killed without a word."""
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, '--batch-rays', 10**9],
+            '--batch-rays 1000000000', 'expected a smaller value', watch=[tmp_path, world['data']])
+
+
+def test_optimize_batch_beyond_memory_but_not_indices(world, tmp_path, small_machine):
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, '--batch-rays', 10**7],
+            '--batch-rays 10000000', 'needs about', 'this machine has 8 GiB', watch=[tmp_path])
+
+
+def test_optimize_without_a_scene_needs_demo(tmp_path):
+    refused(optimize.main, ['-o', tmp_path / 'out', *TRAIN], 'no scene given', '--demo',
+            watch=[tmp_path])
+
+
+def test_optimize_missing_scene(tmp_path):
+    refused(optimize.main, [tmp_path / 'absent.xml', '-o', tmp_path / 'out', *TRAIN],
+            str(tmp_path / 'absent.xml'), 'does not exist', watch=[tmp_path])
+
+
+def test_optimize_missing_data(world, tmp_path):
+    refused(optimize.main, train(world, tmp_path / 'nowhere', tmp_path),
+            str(tmp_path / 'nowhere'), 'dataset folder is missing', watch=[tmp_path])
+
+
+def test_optimize_inverted_container(world, data, tmp_path):
+    """Harmful 2: inward normals made the specimen vanish, exit 0."""
+    transform_mesh(data / 'container.ply', invert=True)
+    refused(optimize.main, train(world, data, tmp_path),
+            str(data / 'container.ply'), 'normals point inward', 'expected outward normals',
+            watch=[tmp_path])
+
+
+def test_scene_pointing_to_an_inverted_container(world, tmp_path):
+    """The check also covers the mesh the scene XML itself loads."""
+    root = tmp_path / 'copy'
+    shutil.copytree(world['root'], root, ignore=shutil.ignore_patterns('*_neus', 'nobox*'))
+    transform_mesh(root / 'box' / 'container.ply', invert=True)
+    xml = root / 'scene_tiny.xml'
+    xml.write_text(xml.read_text().replace(world['data'], str(root / 'box')))
+    refused(render.main, [xml, '-o', tmp_path / 'r.png'],
+            "shape 'container'", 'normals point inward', watch=[tmp_path])
+
+
+def test_optimize_ior_out_of_range(world, data, tmp_path):
+    edit_frames(data, lambda m: m.update(IOR=1e6))
+    refused(optimize.main, train(world, data, tmp_path),
+            'transforms.json', "'IOR' is 1000000.0", 'expected a number in (1, 3]', watch=[tmp_path])
+
+
+def test_optimize_opengl_poses_read_as_opencv(world, data, tmp_path):
+    edit_poses(data, lambda i, m: m @ np.diag([1.0, -1.0, -1.0, 1.0]))
+    refused(optimize.main, train(world, data, tmp_path),
+            'r_000.png', 'view 0', 'behind the camera', 'OpenGL', watch=[tmp_path])
+
+
+def test_optimize_world_to_camera_given(world, data, tmp_path):
+    edit_poses(data, lambda i, m: np.linalg.inv(m))
+    refused(optimize.main, train(world, data, tmp_path), 'view 0', 'container centre',
+            watch=[tmp_path])
+
+
+def test_optimize_one_view_flipped(world, data, tmp_path):
+    edit_poses(data, lambda i, m: m @ np.diag([-1.0, 1.0, -1.0, 1.0]) if i == 7 else m)
+    refused(optimize.main, train(world, data, tmp_path), 'r_007.png', 'view 7', 'behind the camera',
+            watch=[tmp_path])
+
+
+def test_optimize_camera_inside_the_container(world, data, tmp_path):
+    def inside(i, m):
+        if i == 4:
+            m[:3, 3] = [0.01, 0.02, 0.03]
+        return m
+    edit_poses(data, inside)
+    refused(optimize.main, train(world, data, tmp_path), 'r_004.png', 'view 4',
+            'is inside the container', watch=[tmp_path])
+
+
+def test_optimize_container_1000x_too_small(world, data, tmp_path):
+    transform_mesh(data / 'container.ply', np.diag([1e-3, 1e-3, 1e-3, 1.0]))
+    refused(optimize.main, train(world, data, tmp_path), 'view 0', 'the container spans about',
+            "cameras' units", watch=[tmp_path])
+
+
+def test_optimize_container_100_units_away(world, data, tmp_path):
+    move = np.eye(4)
+    move[:3, 3] = [100.0, 0.0, 0.0]
+    transform_mesh(data / 'container.ply', move)
+    refused(optimize.main, train(world, data, tmp_path), 'view ', 'container centre',
+            watch=[tmp_path])
+
+
+def test_optimize_mask_disagrees_with_the_container(world, data, tmp_path):
+    from reneus_mi.data.images import read_image, write_png
+    rgb, _ = read_image(str(data / 'images' / 'r_005.png'))
+    alpha = np.zeros(rgb.shape[:2])
+    alpha[:2, :2] = 1.0
+    write_png(str(data / 'images' / 'r_005.png'), np.concatenate([rgb, alpha[..., None]], -1))
+    refused(optimize.main, train(world, data, tmp_path), 'r_005.png', 'view 5', 'IoU',
+            watch=[tmp_path])
+
+
+def test_optimize_nan_in_a_pose(world, data, tmp_path):
+    edit_poses(data, lambda i, m: np.where(np.eye(4, k=1) * (i == 3), np.nan, m))
+    refused(optimize.main, train(world, data, tmp_path), 'frames[3]', 'entry [0][1] is nan',
+            'expected finite numbers', watch=[tmp_path])
+
+
+def test_optimize_mirrored_pose(world, data, tmp_path):
+    edit_poses(data, lambda i, m: m @ np.diag([-4.0, 1.0, 1.0, 1.0]) if i == 2 else m)
+    refused(optimize.main, train(world, data, tmp_path), 'frames[2]', 'determinant -4',
+            'expected a rotation', watch=[tmp_path])
+
+
+def test_optimize_neus_views_named_twice(world, tmp_path):
+    """Harmful 1: views are paired with cameras by the number in the name, never guessed."""
+    data = tmp_path / 'neus'
+    shutil.copytree(world['neus'], data)
+    os.rename(data / 'image' / '011.png', data / 'image' / '1.png')
+    refused(optimize.main, train(world, data, tmp_path), '001.png and 1.png both name view 1',
+            watch=[tmp_path])
+
+
+def test_optimize_neus_name_without_number(world, tmp_path):
+    data = tmp_path / 'neus'
+    shutil.copytree(world['neus'], data)
+    os.rename(data / 'image' / '011.png', data / 'image' / 'last.png')
+    refused(optimize.main, train(world, data, tmp_path), 'last.png',
+            'expected exactly one view number', watch=[tmp_path])
+
+
+def test_optimize_neus_nan_camera(world, tmp_path):
+    data = tmp_path / 'neus'
+    shutil.copytree(world['neus'], data)
+    cams = dict(np.load(data / 'cameras_sphere.npz'))
+    cams['world_mat_6'][1, 2] = np.nan
+    np.savez(data / 'cameras_sphere.npz', **cams)
+    refused(optimize.main, train(world, data, tmp_path), 'world_mat_6', 'entry [1][2] is nan',
+            watch=[tmp_path])
+
+
+def test_optimize_bad_option_value(world, tmp_path, capsys):
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', '--iterations', 'many'],
+            "--iterations", "'many'", watch=[tmp_path], capsys=capsys, code=2)
+
+
+def test_optimize_zero_iterations(world, tmp_path):
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, '--iterations', '0'],
+            'iterations=0', 'expected an integer > 0', watch=[tmp_path])
+
+
+# ----------------------------------------------------------------- resume
+def test_resume_unknown_config_key(world, run_copy):
+    config = json.loads((run_copy / 'config.json').read_text())
+    config['train']['learning_rat'] = 1e-3
+    (run_copy / 'config.json').write_text(json.dumps(config))
+    refused(optimize.main, ['-o', run_copy, '--resume', '--quiet'], 'config.json',
+            "train.learning_rat: unknown setting", watch=[run_copy])
+
+
+def test_resume_truncated_checkpoint(world, run_copy):
+    path = run_copy / 'checkpoint.npz'
+    path.write_bytes(path.read_bytes()[:200])
+    refused(optimize.main, ['-o', run_copy, '--resume', '--quiet'], str(path),
+            'not a whole checkpoint', watch=[run_copy])
+
+
+def test_resume_with_another_scene(world, run_copy, tmp_path):
+    other = tmp_path / 'other.xml'
+    shutil.copy(world['scene'], other)
+    refused(optimize.main, [other, '-o', run_copy, '--resume', '--quiet'],
+            '--resume continues the run recorded in its config.json', str(other), watch=[run_copy])
+
+
+def test_resume_with_other_data(world, run_copy):
+    """A moved dataset is an explicit --data, checked against the run's."""
+    refused(optimize.main, ['-o', run_copy, '--resume', '--quiet', '--data', world['neus']],
+            'differs from the run', 'names', watch=[run_copy])
+
+
+def test_resume_while_another_process_holds_the_run(world, run_copy):
+    (run_copy / '.lock').write_text(str(os.getppid()))
+    refused(optimize.main, ['-o', run_copy, '--resume', '--quiet', '--iterations', '3'],
+            'in use by process', watch=[run_copy])
+
+
+def test_resume_nothing_to_resume(tmp_path):
+    refused(optimize.main, ['-o', tmp_path / 'empty', '--resume'], 'nothing to resume',
+            watch=[tmp_path])
+
+
+# ==================================================================== render
+def test_render_into_the_dataset_folder(world):
+    refused(render.main, [world['scene'], '-o', os.path.join(world['data'], 'r.png')],
+            'lies in the dataset folder', watch=[world['data']])
+
+
+def test_render_over_an_existing_file(world, tmp_path):
+    (tmp_path / 'photo.png').write_bytes(b'precious')
+    refused(render.main, [world['scene'], '-o', tmp_path / 'photo.png'], 'photo.png',
+            'exists', '--overwrite', watch=[tmp_path])
+
+
+def test_render_over_its_scene(world):
+    refused(render.main, [world['scene'], '-o', world['scene'], '--overwrite'],
+            'is or lies inside the input', watch=[world['root']])
+
+
+def test_render_unknown_image_type(world, tmp_path):
+    refused(render.main, [world['scene'], '-o', tmp_path / 'r.jpg'], 'r.jpg',
+            'expected a file ending in .exr or .png', watch=[tmp_path])
+
+
+def test_render_negative_spp(world, tmp_path):
+    refused(render.main, [world['scene'], '-o', tmp_path / 'r.png', '--spp', '-1'],
+            '--spp -1', 'expected >= 0', watch=[tmp_path])
+
+
+def test_render_beyond_32_bit_indices(world, tmp_path):
+    refused(render.main, [world['scene'], '-o', tmp_path / 'r.png', '--spp', 10**8],
+            '16x16 pixels at 100000000 spp', '32-bit index limit', watch=[tmp_path])
+
+
+def test_render_truncated_field(world, tmp_path):
+    bad = tmp_path / 'field.npz'
+    bad.write_bytes(open(world['checkpoint'], 'rb').read()[:300])
+    refused(render.main, [world['scene'], '-o', tmp_path / 'r.png', '--field', bad],
+            str(bad), 'not a whole field', watch=[tmp_path])
+
+
+def test_render_output_under_a_file(world, tmp_path):
+    (tmp_path / 'file').write_text('x')
+    refused(render.main, [world['scene'], '-o', tmp_path / 'file' / 'r.png'],
+            'is a file, expected a folder', watch=[tmp_path])
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason='root writes into read-only folders')
+def test_render_read_only_folder(world, tmp_path):
+    folder = tmp_path / 'ro'
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        refused(render.main, [world['scene'], '-o', folder / 'r.png'], 'not writable',
+                watch=[tmp_path])
+    finally:
+        folder.chmod(0o755)
+
+
+def test_render_integrator_parameter_as_text(world, tmp_path):
+    xml = tmp_path / 'scene.xml'
+    text = open(world['scene']).read()
+    assert '<string name="preset" value="tiny" />' in text
+    xml.write_text(text.replace('<string name="preset" value="tiny" />',
+                                '<string name="preset" value="tiny" /><string name="n_coarse" value="eight" />')
+                .replace('value="box/', f'value="{world["data"]}/'))
+    refused(render.main, [xml, '-o', tmp_path / 'r.png'], 'n_coarse', "'eight'", watch=[tmp_path])
+
+
+# =================================================================== extract
+def test_extract_resolution_beyond_indices(world, tmp_path):
+    """Harmful 5: --resolution 100000 asked for 3.55 PiB."""
+    refused(extract.main, [world['checkpoint'], '-o', tmp_path / 'm.ply', '--resolution', 100000],
+            '--resolution 100000', '32-bit index limit', watch=[tmp_path, world['run']])
+
+
+def test_extract_resolution_beyond_memory(world, tmp_path, small_machine):
+    refused(extract.main, [world['checkpoint'], '-o', tmp_path / 'm.ply', '--resolution', 1600],
+            '--resolution 1600', 'needs about', 'expected a smaller value', watch=[tmp_path])
+
+
+def test_extract_resolution_too_small(world, tmp_path):
+    refused(extract.main, [world['checkpoint'], '-o', tmp_path / 'm.ply', '--resolution', 4],
+            '--resolution 4', 'expected >= 8', watch=[tmp_path])
+
+
+def test_extract_truncated_checkpoint(world, tmp_path):
+    bad = tmp_path / 'checkpoint.npz'
+    bad.write_bytes(open(world['checkpoint'], 'rb').read()[:1000])
+    refused(extract.main, [bad, '-o', tmp_path / 'm.ply'], str(bad), 'not a whole checkpoint',
+            watch=[tmp_path])
+
+
+def test_extract_missing_checkpoint(tmp_path):
+    refused(extract.main, [tmp_path / 'none.npz', '-o', tmp_path / 'm.ply'], 'none.npz',
+            'does not exist', watch=[tmp_path])
+
+
+def test_extract_unknown_mesh_type(world, tmp_path):
+    refused(extract.main, [world['checkpoint'], '-o', tmp_path / 'm.xyz'], 'm.xyz',
+            'expected a file ending in .ply', watch=[tmp_path])
+
+
+def test_extract_over_its_checkpoint(world):
+    refused(extract.main, [world['checkpoint'], '-o', world['checkpoint'], '--overwrite'],
+            'is or lies inside the input', watch=[world['run']])
+
+
+def test_extract_over_an_existing_file(world, tmp_path):
+    (tmp_path / 'mesh.ply').write_text('mine')
+    refused(extract.main, [world['checkpoint'], '-o', tmp_path / 'mesh.ply'], 'exists',
+            watch=[tmp_path])
+
+
+# ================================================================== evaluate
+def test_evaluate_unknown_mesh_type(world, tmp_path):
+    (tmp_path / 'pred.xyz').write_text('0 0 0\n')
+    refused(evaluate.main, [tmp_path / 'pred.xyz', world['gt']], 'pred.xyz', 'unknown type .xyz',
+            watch=[tmp_path])
+
+
+def test_evaluate_missing_prediction(world, tmp_path):
+    refused(evaluate.main, [tmp_path / 'pred.ply', world['gt']], 'pred.ply', 'does not exist',
+            watch=[tmp_path])
+
+
+def test_evaluate_json_into_the_dataset(world):
+    refused(evaluate.main, [world['gt'], world['gt'], '--json', os.path.join(world['data'], 'r.json')],
+            'lies in the dataset folder', watch=[world['data']])
+
+
+def test_evaluate_json_over_an_existing_file(world, tmp_path):
+    (tmp_path / 'r.json').write_text('{}')
+    refused(evaluate.main, [world['gt'], world['gt'], '--json', tmp_path / 'r.json'], 'exists',
+            watch=[tmp_path])
+
+
+def test_evaluate_inverted_container(world, tmp_path):
+    box = tmp_path / 'box.ply'
+    shutil.copy(os.path.join(world['data'], 'container.ply'), box)
+    transform_mesh(box, invert=True)
+    refused(evaluate.main, [world['gt'], world['gt'], '--container', box], str(box),
+            'normals point inward', watch=[tmp_path])
+
+
+def test_evaluate_crop_without_container(world, tmp_path):
+    refused(evaluate.main, [world['gt'], world['gt'], '--postprocess', 'crop'], '--container',
+            watch=[tmp_path])
+
+
+# ===================================================================== scene
+def test_scene_into_the_dataset_folder(world):
+    refused(scene.main, [world['data'], '-o', os.path.join(world['data'], 'scene.xml')],
+            'lies in the dataset folder', watch=[world['data']])
+
+
+def test_scene_over_an_existing_file(world, tmp_path):
+    (tmp_path / 'scene.xml').write_text('<scene/>')
+    refused(scene.main, [world['data'], '-o', tmp_path / 'scene.xml'], 'exists', watch=[tmp_path])
+
+
+def test_scene_unknown_extension(world, tmp_path):
+    refused(scene.main, [world['data'], '-o', tmp_path / 'scene.txt'],
+            'expected a file ending in .xml', watch=[tmp_path])
+
+
+def test_scene_missing_data(tmp_path):
+    refused(scene.main, [tmp_path / 'absent', '-o', tmp_path / 'scene.xml'],
+            'dataset folder is missing', watch=[tmp_path])
+
+
+def test_scene_output_under_a_file(world, tmp_path):
+    (tmp_path / 'file').write_text('x')
+    refused(scene.main, [world['data'], '-o', tmp_path / 'file' / 'scene.xml'],
+            'is a file, expected a folder', watch=[tmp_path])
+
+
+# ===================================================================== synth
+def test_synth_into_an_existing_dataset(world, data):
+    """Harmful 4: synth -o EXISTING overwrote 7 files before refusing."""
+    refused(synth.main, ['sphere', '-o', data, '--views', 2, '--res', 8, '--spp', 1],
+            str(data), 'lies in the dataset folder', watch=[data])
+
+
+def test_synth_into_a_folder_with_files(tmp_path):
+    (tmp_path / 'notes.txt').write_text('mine')
+    refused(synth.main, ['sphere', '-o', tmp_path, '--views', 2, '--res', 8, '--spp', 1],
+            'is not empty (holds notes.txt)', watch=[tmp_path])
+
+
+def test_synth_beyond_memory(tmp_path, small_machine):
+    refused(synth.main, ['sphere', '-o', tmp_path / 'out', '--views', 60, '--res', 100000],
+            '60 views at 100000x100000', 'needs about', watch=[tmp_path])
+
+
+def test_synth_no_views(tmp_path):
+    refused(synth.main, ['sphere', '-o', tmp_path / 'out', '--views', 0], 'views=0',
+            'expected positive numbers', watch=[tmp_path])
+
+
+def test_synth_unknown_object(tmp_path):
+    refused(synth.main, ['nope', '-o', tmp_path / 'out', '--views', 2, '--res', 8],
+            "'nope'", 'neither an object name', watch=[tmp_path])
+
+
+def test_synth_zero_spp(tmp_path):
+    refused(synth.main, ['sphere', '-o', tmp_path / 'out', '--spp', 0], 'spp=0',
+            'expected a positive integer', watch=[tmp_path])
+
+
+def test_synth_negative_margin(tmp_path):
+    refused(synth.main, ['sphere', '-o', tmp_path / 'out', '--margin', -1], 'margin=-1',
+            'expected a number >= 0', watch=[tmp_path])
+
+
+# =========================================================== real processes
+def test_processes_exit_1_with_one_line(world, tmp_path):
+    """The interpreter's own exit: status 1, one stderr line, no traceback, nothing written."""
+    before = snapshot(world['data'], world['run'])
+    one_error_line(process('optimize', world['scene'], '-o', world['data'], *TRAIN),
+                   'dataset folder')
+    one_error_line(process('extract', world['checkpoint'], '-o', tmp_path / 'm.ply',
+                           '--resolution', 100000), '32-bit')
+    one_error_line(process('synth', 'sphere', '-o', world['data']), 'dataset folder')
+    one_error_line(process('render', world['scene'], '-o', tmp_path / 'r.jpg'), '.exr or .png')
+    assert snapshot(world['data'], world['run']) == before
+    assert os.listdir(tmp_path) == []
+
+
+# ============================================ what a resumed run must survive
+def test_resume_finished_run_reports_the_logged_psnr(world, run_copy, capsys):
+    """No step is left: the summary takes the PSNR from the log, and names no images/."""
+    assert optimize.main(['-o', str(run_copy), '--resume', '--quiet']) == 0
+    out = capsys.readouterr().out
+    assert 'done: 2 iterations' in out and 'nan' not in out and 'renders' not in out
+    logged = [json.loads(line) for line in (run_copy / 'log.jsonl').read_text().splitlines()]
+    assert f"PSNR {np.mean([e['psnr'] for e in logged]):.2f} dB" in out
+
+
+def test_resume_drops_a_torn_log_line(world, run_copy):
+    with open(run_copy / 'log.jsonl', 'a') as f:
+        f.write('{"iteration": 3, "loss": 0.1')          # a kill mid-line
+    assert optimize.main(['-o', str(run_copy), '--resume', '--quiet', '--iterations', '3']) == 0
+    steps = [json.loads(line)['iteration'] for line in (run_copy / 'log.jsonl').read_text().splitlines()]
+    assert steps == [1, 2, 3]
+
+
+def test_resume_removes_a_stray_temporary(world, run_copy):
+    (run_copy / '.tmp-k1ll3d.npz').write_bytes(b'half a checkpoint')
+    assert optimize.main(['-o', str(run_copy), '--resume', '--quiet']) == 0
+    assert not (run_copy / '.tmp-k1ll3d.npz').exists() and not (run_copy / '.lock').exists()
+
+
+def test_interrupted_step_leaves_the_batch_stream_alone(world, tmp_path):
+    """Ctrl-C inside a step: redoing it draws what the unbroken run drew (batches depend on the step)."""
+    from test_checkpoint import assert_same_state, new_trainer, train_state
+    unbroken = new_trainer(world['scene'], tmp_path / 'a')
+    unbroken.step()
+    trainer = new_trainer(world['scene'], tmp_path / 'b')
+    render_rays = trainer.integrator.render_rays
+
+    def interrupted(*args, **kwargs):
+        trainer.integrator.render_rays = render_rays
+        raise KeyboardInterrupt
+    trainer.integrator.render_rays = interrupted
+    with pytest.raises(KeyboardInterrupt):
+        trainer.step()
+    assert trainer.iteration == 0
+    trainer.step()
+    assert_same_state(train_state(unbroken), train_state(trainer), exact=False)
+
+
+def test_validation_without_surface_goes_on(world, tmp_path, monkeypatch):
+    from reneus_mi.mesh import NoSurfaceError
+    from test_checkpoint import new_trainer
+    trainer = new_trainer(world['scene'], tmp_path / 'out')
+
+    def no_surface(*args, **kwargs):
+        raise NoSurfaceError('NeuSField has no zero crossing')
+    monkeypatch.setattr(trainer, 'write_mesh', no_surface)
+    with pytest.warns(UserWarning, match='no mesh snapshot .* training goes on'):
+        trainer.validate()
+    assert sorted(os.listdir(tmp_path / 'out' / 'images')) == ['000000.png', '000000_normal.png']
+
+
+def test_optimize_field_sphere_away_from_the_container(world, tmp_path):
+    """No ray would reach the field: said before training, not by drjit.backward()."""
+    xml = tmp_path / 'scene.xml'
+    text = open(world['scene']).read()
+    start = text.index('<point name="field_center"')
+    end = text.index('/>', start) + 2
+    xml.write_text(text[:start] + '<point name="field_center" x="50" y="0" z="0"/>' + text[end:]
+                   .replace('value="box/', f'value="{world["data"]}/'))
+    refused(optimize.main, [xml, '-o', tmp_path / 'out', *TRAIN],
+            'the field sphere (centre [50.0, 0.0, 0.0]', 'no ray would reach the field',
+            watch=[tmp_path])
+
+
+def test_scene_with_overlapping_container_parts(world, tmp_path):
+    xml = tmp_path / 'scene.xml'
+    text = open(world['scene']).read().replace('value="box/', f'value="{world["data"]}/')
+    start = text.index('<shape')
+    end = text.index('</shape>', start) + len('</shape>')
+    shape = text[start:end]
+    moved = shape.replace('id="container"', 'id="second"').replace(
+        '</shape>', '<transform name="to_world"><translate x="0.1" y="0.1" z="0.1"/></transform></shape>')
+    xml.write_text(text[:end] + moved + text[end:])
+    refused(render.main, [xml, '-o', tmp_path / 'r.png'],
+            'container parts overlap', watch=[tmp_path])
+
+
+def test_optimize_help_states_each_default_once(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        optimize.main(['--help'])
+    assert exit_info.value.code == 0
+    text = ' '.join(capsys.readouterr().out.split())
+    # Training settings default to the preset's values, and say so once each.
+    assert text.count("(default: the preset's)") >= 15 and text.count('(default: 3000)') == 0
+    assert '(default: None)' not in text
+
+
+def test_final_mesh_without_surface_says_the_run_can_go_on(world, tmp_path, monkeypatch):
+    from reneus_mi.mesh import NoSurfaceError
+    from reneus_mi.trainer import TrainingError
+    from test_checkpoint import new_trainer
+    trainer = new_trainer(world['scene'], tmp_path / 'out')
+    trainer.iteration = trainer.cfg.iterations          # nothing left to train
+
+    def no_surface(*args, **kwargs):
+        raise NoSurfaceError('NeuSField has no zero crossing')
+    monkeypatch.setattr(trainer, 'write_mesh', no_surface)
+    result = trainer.run(progress=False)
+    assert re.search(r'no zero crossing; .*mesh.ply is empty; the run can go on: --resume with more '
+                     r'--iterations', result['failure'])
+    assert os.path.isfile(trainer.checkpoint_path)
+    assert trimesh.load(result['mesh'], force='mesh').is_empty
+
+
+def test_resume_with_moved_data(world, run_copy, tmp_path):
+    """The same photographs in another folder: an explicit --data is checked and recorded."""
+    moved = tmp_path / 'moved'
+    shutil.copytree(world['data'], moved)
+    assert optimize.main(['-o', str(run_copy), '--resume', '--quiet', '--data', str(moved)]) == 0
+    assert json.loads((run_copy / 'config.json').read_text())['data'] == str(moved)

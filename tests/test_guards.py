@@ -1,0 +1,187 @@
+"""Guards: output places, sizes, the run lock, log repair, whole checkpoints."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import zipfile
+
+import numpy as np
+import pytest
+
+from reneus_mi import guards
+from reneus_mi.errors import ReneusError, exit_on_error, user_message
+from reneus_mi.io import atomic_path, atomic_write_text
+
+
+def dataset_folder(path):
+    path.mkdir(parents=True)
+    (path / 'transforms.json').write_text('{}')
+    return path
+
+
+def test_output_file_places(tmp_path):
+    data = dataset_folder(tmp_path / 'data')
+    with pytest.raises(ReneusError, match='lies in the dataset folder'):
+        guards.check_output_file(data / 'sub' / 'x.png')
+    scene = tmp_path / 'scene.xml'
+    scene.write_text('<scene/>')
+    with pytest.raises(ReneusError, match='is or lies inside the input'):
+        guards.check_output_file(scene, inputs=[scene], overwrite=True)
+    with pytest.raises(ReneusError, match=r'exists; expected a new file name \(or --overwrite'):
+        guards.check_output_file(scene)
+    assert guards.check_output_file(scene, overwrite=True) == str(scene)
+    with pytest.raises(ReneusError, match=r'expected a file ending in .png or .exr'):
+        guards.check_output_file(tmp_path / 'x.jpg', extensions=('.png', '.exr'))
+    with pytest.raises(ReneusError, match='is a file, expected a folder'):
+        guards.check_output_file(scene / 'x.png')
+    # A symbolic link into the dataset is the dataset.
+    os.symlink(data, tmp_path / 'link')
+    with pytest.raises(ReneusError, match='lies in the dataset folder'):
+        guards.check_output_file(tmp_path / 'link' / 'x.png')
+
+
+def test_output_dir_places(tmp_path):
+    data = dataset_folder(tmp_path / 'data')
+    with pytest.raises(ReneusError, match='lies in the dataset folder'):
+        guards.check_output_dir(data)
+    (tmp_path / 'parent' / 'photos').mkdir(parents=True)
+    with pytest.raises(ReneusError, match='contains the input'):
+        guards.check_output_dir(tmp_path / 'parent', inputs=[tmp_path / 'parent' / 'photos'])
+    (tmp_path / 'used').mkdir()
+    (tmp_path / 'used' / 'a.txt').write_text('a')
+    with pytest.raises(ReneusError, match=r'is not empty \(holds a.txt\)'):
+        guards.check_output_dir(tmp_path / 'used')
+    assert guards.check_output_dir(tmp_path / 'used', allow=('a.txt',)) == str(tmp_path / 'used')
+    assert guards.check_output_dir(tmp_path / 'new' / 'deeper') == str(tmp_path / 'new' / 'deeper')
+    assert not (tmp_path / 'new').exists()
+
+
+def test_run_dir(tmp_path):
+    run = tmp_path / 'run'
+    run.mkdir()
+    for name in ('config.json', 'log.jsonl', '.tmp-x.npz'):
+        (run / name).write_text('')
+    guards.check_run_dir(run)            # a run killed before its first checkpoint
+    (run / 'checkpoint.npz').write_text('')
+    with pytest.raises(ReneusError, match='holds checkpoint.npz'):
+        guards.check_run_dir(run)
+    (run / 'notes.txt').write_text('')
+    guards.check_run_dir(run, resume=True)
+
+
+def test_memory_and_indices():
+    guards.check_memory(10 * 2**30, 'x', available=16 * 2**30)
+    with pytest.raises(ReneusError, match=r'x: needs about 14 GiB, but this machine has 16 GiB'):
+        guards.check_memory(14 * 2**30, 'x', available=16 * 2**30)
+    guards.check_index_range(2**32 - 1, 'n')
+    with pytest.raises(ReneusError, match='n: 4294967296 elements .* 32-bit index limit'):
+        guards.check_index_range(2**32, 'n')
+    assert guards.physical_memory() > 2**28
+
+
+def test_training_bytes_is_a_floor_of_the_measured_cost():
+    # Measured: 96 B per sample slot (see guards.BYTES_PER_SAMPLE_SLOT).
+    assert guards.training_bytes(32768 - 1024, 16, 3) < (407176 - 263352) * 1024
+    assert guards.training_bytes(2048, 16, 3) == 2 * guards.training_bytes(1024, 16, 3)
+
+
+def test_run_lock(tmp_path):
+    with guards.RunLock(tmp_path):
+        assert (tmp_path / '.lock').read_text() == str(os.getpid())
+        with pytest.raises(ReneusError, match=f'in use by process {os.getpid()}'):
+            guards.RunLock(tmp_path).acquire()
+    assert not (tmp_path / '.lock').exists()
+    # A lock left by a killed process is taken over.
+    dead = subprocess.run([sys.executable, '-c', 'import os; print(os.getpid())'],
+                          capture_output=True, text=True).stdout.strip()
+    (tmp_path / '.lock').write_text(dead)
+    with guards.RunLock(tmp_path):
+        assert (tmp_path / '.lock').read_text() == str(os.getpid())
+
+
+def _log(path, steps, torn=False):
+    text = ''.join(json.dumps({'iteration': i, 'psnr': 20.0 + i}) + '\n' for i in steps)
+    path.write_text(text + ('{"iteration": 9, "ps' if torn else ''))
+
+
+def test_repair_log(tmp_path):
+    path = tmp_path / 'log.jsonl'
+    _log(path, range(1, 9), torn=True)
+    entries = guards.repair_log(path, 6)
+    assert [e['iteration'] for e in entries] == list(range(1, 7))
+    assert [json.loads(line)['iteration'] for line in path.read_text().splitlines()] == list(range(1, 7))
+    _log(path, [1, 2, 5, 6])
+    with pytest.warns(UserWarning, match=r'no log line for 2 of the 6 steps .* \[3, 4\]'):
+        guards.repair_log(path, 6)
+    path.write_text('{"iteration": 1}\ngarbage\n{"iteration": 2}\n')
+    with pytest.raises(ReneusError, match="line 2 is not a log entry"):
+        guards.repair_log(path, 2)
+    assert guards.recent_psnr([{'psnr': 10.0}, {'psnr': 20.0}, {'psnr': 30.0}], n=2) == 25.0
+    assert guards.recent_psnr([]) is None
+
+
+def test_npz_file(tmp_path):
+    path = tmp_path / 'c.npz'
+    np.savez(path, meta=np.array('{}'), w=np.zeros(1000))
+    guards.check_npz_file(path)
+    with pytest.raises(ReneusError, match=r"not a reneus-mi checkpoint \(no header\)"):
+        guards.check_npz_file(path, keys=('header',))
+    path.write_bytes(path.read_bytes()[:300])
+    with pytest.raises(ReneusError, match='not a whole checkpoint'):
+        guards.check_npz_file(path)
+    with pytest.raises(ReneusError, match='checkpoint file does not exist'):
+        guards.check_npz_file(tmp_path / 'none.npz')
+
+
+def test_stray_temporaries(tmp_path):
+    """A kill inside an atomic write leaves a temporary that the next start removes."""
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_path(tmp_path / 'checkpoint.npz') as tmp:
+            open(tmp, 'wb').write(b'half')
+            raise KeyboardInterrupt
+    assert os.listdir(tmp_path) == []
+    (tmp_path / '.tmp-abc.npz').write_bytes(b'left by SIGKILL')
+    atomic_write_text(tmp_path / 'log.jsonl', '')
+    assert guards.remove_stray_temporaries(tmp_path) == ['.tmp-abc.npz']
+    assert os.listdir(tmp_path) == ['log.jsonl']
+
+
+def test_dataset_fingerprint():
+    class DS:
+        root, width, height, names = '/d', 4, 3, ['a.png', 'b.png']
+        c2w = np.stack([np.eye(4)] * 2)
+
+        def __len__(self):
+            return 2
+    saved = guards.dataset_fingerprint(DS())
+    guards.check_same_dataset(saved, DS(), 'config.json')
+    other = DS()
+    other.names = ['a.png', 'c.png']
+    with pytest.raises(ReneusError, match=r"differs from the run's \(names"):
+        guards.check_same_dataset(saved, other, 'config.json')
+    moved = DS()
+    moved.c2w = moved.c2w.copy()
+    moved.c2w[1, 0, 3] = 0.5
+    with pytest.raises(ReneusError, match='other camera positions'):
+        guards.check_same_dataset(saved, moved, 'config.json')
+
+
+def test_keys():
+    guards.check_keys({'a': 1}, ['a', 'b'], 'where')
+    with pytest.raises(ReneusError, match=r"where: unknown key\(s\) 'c'; expected some of a, b"):
+        guards.check_keys({'a': 1, 'c': 2}, ['a', 'b'], 'where')
+
+
+def test_exit_on_error_is_one_line():
+    with pytest.raises(SystemExit) as e:
+        with exit_on_error():
+            raise ReneusError('a\nb')
+    assert e.value.code == 'error: a b'
+    with pytest.raises(SystemExit) as e:
+        with exit_on_error():
+            open('/nonexistent/x')
+    assert e.value.code == "error: /nonexistent/x: No such file or directory"
+    wrapped = RuntimeError('scene.xml (line 3): Traceback (most recent call last):\n  x\nValueError: bad')
+    assert user_message(wrapped) == 'scene.xml (line 3): ValueError: bad'
