@@ -123,7 +123,7 @@ class TrainConfig:
         """NeuS's schedule: linear warm-up, then cosine decay to ``learning_rate_alpha``."""
         if it < self.warm_up:
             return self.learning_rate * (it + 1) / self.warm_up
-        progress = (it - self.warm_up) / max(self.iterations - self.warm_up, 1)
+        progress = min((it - self.warm_up) / max(self.iterations - self.warm_up, 1), 1.0)
         a = self.learning_rate_alpha
         return self.learning_rate * ((math.cos(math.pi * progress) + 1.0) * 0.5 * (1 - a) + a)
 
