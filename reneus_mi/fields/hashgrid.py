@@ -38,9 +38,7 @@ import numpy as np
 
 from reneus_mi.fields.activations import Softplus
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
-from reneus_mi.fields.base import Field, FieldConfig
-from reneus_mi.fields.neus import build_mlp, fan_in_uniform_init, positional_encoding, storage_types
-from reneus_mi.variant import is_cuda
+from reneus_mi.fields.neus import NeuralField, NeuralFieldConfig, build_mlp, fan_in_uniform_init
 
 # Scale of the SDF head relative to its fan-in initialisation: the residual on
 # the sphere starts at ~1e-3 while every weight still gets a gradient.
@@ -48,10 +46,16 @@ _SDF_HEAD_GAIN = 1e-3
 
 
 @dataclass
-class HashGridFieldConfig(FieldConfig):
+class HashGridFieldConfig(NeuralFieldConfig):
     """Architecture and schedule of :class:`HashGridField`; defaults suit a CPU."""
 
     kind: ClassVar[str] = 'hashgrid'
+
+    # The grid carries the detail, so the radiance network is smaller than NeuS's.
+    n_features: int = 8
+    color_hidden: int = 32
+    color_layers: int = 1
+    multires_view: int = 2
 
     n_levels: int = 8
     """Resolution levels of the hash grid."""
@@ -71,18 +75,6 @@ class HashGridFieldConfig(FieldConfig):
     """Hidden activation of the SDF network: 'relu' or 'softplus' (beta = ``beta``)."""
     beta: float = 100.0
     """Sharpness of the Softplus activation."""
-    n_features: int = 8
-    """Length of the feature vector passed from the SDF to the radiance network."""
-    color_hidden: int = 32
-    """Width of the radiance network."""
-    color_layers: int = 1
-    """Hidden (ReLU) layers of the radiance network."""
-    multires_view: int = 2
-    """Octaves of the positional encoding of the viewing direction."""
-    init_radius: float = 0.5
-    """Radius of the sphere that the untrained SDF represents."""
-    init_variance: float = 0.3
-    """Initial value of NeuS's ``variance``; inv_s = exp(10 * variance)."""
     levels_start: int = 3
     """Levels open at step 0 (coarse to fine, Neuralangelo)."""
     level_steps: int = 100
@@ -99,20 +91,12 @@ class HashGridFieldConfig(FieldConfig):
     ~1e-2 and the MLPs at 1e-3, as in instant-NGP's table rate."""
     step: int = 0
     """Training step the schedule is at (moved by ``set_step``; saved with the field)."""
-    dtype: str = 'auto'
-    """Weight precision: 'float32', 'float16', or 'auto' (float16 on CUDA,
-    where cooperative vectors pack only half precision; float32 on LLVM)."""
-    seed: int = 0
-    """Seed of the initialisation."""
 
     def __post_init__(self):
+        super().__post_init__()
         check_numbers(self, positive=('n_levels', 'base_resolution', 'finest_resolution', 'hidden', 'layers',
-                                      'n_features', 'color_hidden', 'color_layers', 'levels_start',
-                                      'level_steps', 'beta', 'init_radius', 'fd_cells', 'grid_lr_scale'),
-                      at_least_zero=('multires_view', 'seed', 'step'), finite=('init_variance',))
-        if not self.init_radius < Field.bound:
-            raise ReneusError(f'hashgrid: init_radius={self.init_radius!r}; expected a radius below '
-                              f'the field bound {Field.bound}')
+                                      'levels_start', 'level_steps', 'beta', 'fd_cells', 'grid_lr_scale'),
+                      at_least_zero=('step',))
         check_choice(self, 'features_per_level', (2, 4, 8))
         check_choice(self, 'log2_hashmap_size', tuple(range(10, 25)))
         if not self.finest_resolution >= self.base_resolution:
@@ -120,7 +104,6 @@ class HashGridFieldConfig(FieldConfig):
                               f'at least base_resolution={self.base_resolution}')
         check_choice(self, 'gradient', ('analytic', 'numerical'))
         check_choice(self, 'activation', ('relu', 'softplus'))
-        check_choice(self, 'dtype', ('auto', 'float32', 'float16'))
 
     @property
     def per_level_scale(self) -> float:
@@ -134,7 +117,7 @@ class HashGridFieldConfig(FieldConfig):
         return min(self.n_levels, self.levels_start + step // self.level_steps)
 
 
-class HashGridField(Field):
+class HashGridField(NeuralField):
     """Hash-grid SDF + NeuS radiance + NeuS sharpness, behind the Field interface.
 
     - SDF: x ∈ [-1, 1]^3 is mapped to u = (x + 1)/2 ∈ [0, 1]^3 for the grid;
@@ -157,20 +140,8 @@ class HashGridField(Field):
     Config = HashGridFieldConfig
 
     def __init__(self, config: HashGridFieldConfig | None = None, **kwargs):
-        try:
-            cfg = dataclasses.replace(config or HashGridFieldConfig(), **kwargs)
-        except TypeError:
-            known = {f.name for f in dataclasses.fields(HashGridFieldConfig)}
-            unknown = sorted(set(kwargs) - known)
-            raise ValueError(f'HashGridField: unknown option(s) {unknown}; expected some of {sorted(known)}') from None
-        if cfg.dtype == 'float32' and is_cuda():
-            raise ValueError("HashGridField: dtype='float32' is not available on CUDA "
-                             "(cooperative vectors pack only half precision); use 'float16' or 'auto'")
-        self.cfg = cfg
-        self.n_features = cfg.n_features
-        self._net_t, tensor_t = storage_types(cfg.dtype)
-        rng = np.random.default_rng(cfg.seed)
-
+        super().__init__(config, **kwargs)
+        cfg, tensor_t, rng = self.cfg, self._tensor_t, self._rng
         self.encoding = nn.HashGridEncoding(
             self._net_t, 3, n_levels=cfg.n_levels, n_features_per_level=cfg.features_per_level,
             hashmap_size=2 ** cfg.log2_hashmap_size, base_resolution=cfg.base_resolution,
@@ -184,13 +155,8 @@ class HashGridField(Field):
         head.weights = tensor_t(np.asarray(head.weights, np.float32) * _SDF_HEAD_GAIN)
         head.bias = tensor_t(np.zeros(1, np.float32))
 
-        n_color = 3 + 3 * (1 + 2 * cfg.multires_view) + 3 + cfg.n_features
-        color = build_mlp(n_color, cfg.color_hidden, cfg.color_layers, (3,), nn.ReLU(), tensor_t)
-        fan_in_uniform_init(color, tensor_t, rng)
-
         self.sdf_network = nn.pack(sdf, layout='training')
-        self.color_network = nn.pack(color, layout='training')
-        self._variance = dr.opaque(mi.Float, cfg.init_variance)
+        self.color_network = self._radiance_network()
         self.set_step(cfg.step)
 
     # ------------------------------------------------------------ schedule
@@ -208,9 +174,6 @@ class HashGridField(Field):
         return {'sdf.grid': float(self.cfg.grid_lr_scale)}
 
     # ------------------------------------------------------------ networks
-    def _to_net(self, values: list) -> nn.CoopVec:
-        return nn.CoopVec(*[self._net_t(v) for v in values])
-
     def _encode(self, u: mi.Point3f, jacobian: bool) -> tuple[list, list]:
         """Grid features H(u), and ∂H/∂u (one Vector3f per feature) if ``jacobian``.
 
@@ -296,44 +259,16 @@ class HashGridField(Field):
         ((sdf,), feature), grad = self._sdf_net(x, (0, 1), jacobian=True)
         return sdf, grad, feature
 
-    def radiance(self, x: mi.Point3f, v: mi.Vector3f, n: mi.Vector3f,
-                 feature: list[mi.Float]) -> mi.Color3f:
-        if len(feature) != self.n_features:
-            raise ValueError(f'HashGridField.radiance: {len(feature)} feature channels, '
-                             f'expected {self.n_features}')
-        inputs = [x.x, x.y, x.z, *positional_encoding([v.x, v.y, v.z], self.cfg.multires_view),
-                  n.x, n.y, n.z, *feature]
-        (rgb,) = self.color_network(self._to_net(inputs))
-        r, g, b = [mi.Float(c) for c in rgb]
-        return dr.rcp(1.0 + dr.exp(-mi.Color3f(r, g, b)))
-
-    def inv_s(self) -> mi.Float:
-        return dr.exp(10.0 * self._variance)
-
     # ---------------------------------------------------------- parameters
     def params(self) -> dict:
-        return {'sdf.grid': self.encoding.data,
-                'sdf.weights': self.sdf_network['weights'],
-                'color.weights': self.color_network['weights'],
-                'variance': self._variance}
+        return {'sdf.grid': self.encoding.data, 'sdf.weights': self.sdf_network['weights'],
+                **super().params()}
 
-    def _assign(self, key: str, value) -> None:
-        current = self.params().get(key)
-        if current is None:
-            super()._assign(key, value)
-        if dr.width(value) != dr.width(current):
-            raise ValueError(f'HashGridField: parameter {key!r} given {dr.width(value)} values, '
-                             f'expected {dr.width(current)}')
-        if type(value) is not type(current):
-            value = type(current)(value)
-        if key == 'variance':
-            self._variance = value
-        elif key == 'sdf.grid':
+    def _store(self, key: str, value) -> None:
+        if key == 'sdf.grid':
             # The encoding reads its table when traced; nothing else points into it.
             self.encoding.data = value
+        elif key == 'sdf.weights':
+            self.sdf_network['weights'] = value
         else:
-            # In place: the layers' MatrixViews point into this buffer.
-            (self.sdf_network if key == 'sdf.weights' else self.color_network)['weights'] = value
-
-    def config(self) -> dict:
-        return dataclasses.asdict(self.cfg)
+            super()._store(key, value)

@@ -35,7 +35,38 @@ _SIREN_SDF_GAIN = 1e-2
 
 
 @dataclass
-class NeuSFieldConfig(FieldConfig):
+class NeuralFieldConfig(FieldConfig):
+    """What every neural field shares: NeuS's radiance network and sharpness, precision, seed."""
+
+    n_features: int = 256
+    """Length of the feature vector passed from the SDF to the radiance network."""
+    color_hidden: int = 256
+    """Width of the radiance network."""
+    color_layers: int = 4
+    """Hidden (ReLU) layers of the radiance network."""
+    multires_view: int = 4
+    """Octaves of the positional encoding of the viewing direction."""
+    init_radius: float = 0.5
+    """Radius of the sphere that the untrained SDF represents."""
+    init_variance: float = 0.3
+    """Initial value of NeuS's ``variance``; inv_s = exp(10 * variance)."""
+    dtype: str = 'auto'
+    """Weight precision: 'float32', 'float16', or 'auto' (float16 on CUDA,
+    where cooperative vectors pack only half precision; float32 on LLVM)."""
+    seed: int = 0
+    """Seed of the weight initialisation."""
+
+    def __post_init__(self):
+        check_numbers(self, positive=('n_features', 'color_hidden', 'color_layers', 'init_radius'),
+                      at_least_zero=('multires_view', 'seed'), finite=('init_variance',))
+        if not self.init_radius < Field.bound:
+            raise ReneusError(f'{self.kind}: init_radius={self.init_radius!r}; expected a radius below '
+                              f'the field bound {Field.bound}')
+        check_choice(self, 'dtype', ('auto', 'float32', 'float16'))
+
+
+@dataclass
+class NeuSFieldConfig(NeuralFieldConfig):
     """Architecture of :class:`NeuSField`; the defaults are NeuS's (and ReNeuS's)."""
 
     kind: ClassVar[str] = 'neus'
@@ -47,42 +78,20 @@ class NeuSFieldConfig(FieldConfig):
     layer ``layers // 2`` (NeuS: 4 of 8)."""
     multires: int = 6
     """Octaves of the positional encoding of x (frequencies 1, 2, ..., 2^(multires-1))."""
-    n_features: int = 256
-    """Length of the feature vector passed from the SDF to the radiance network."""
     activation: str = 'softplus'
     """'softplus' (NeuS, beta = ``beta``) or 'sine' (SIREN, as in ReNeuS's implementation)."""
     beta: float = 100.0
     """Sharpness of the Softplus activation."""
     omega_0: float = 30.0
     """Frequency factor of the sine activation, sin(omega_0 * (W h + b))."""
-    init_radius: float = 0.5
-    """Radius of the sphere that the untrained SDF represents."""
-    color_hidden: int = 256
-    """Width of the radiance network."""
-    color_layers: int = 4
-    """Hidden (ReLU) layers of the radiance network."""
-    multires_view: int = 4
-    """Octaves of the positional encoding of the viewing direction."""
-    init_variance: float = 0.3
-    """Initial value of NeuS's ``variance``; inv_s = exp(10 * variance)."""
     fd_step: float = 1e-3
     """Step of the finite-difference SDF gradient (normals, Eikonal term)."""
-    dtype: str = 'auto'
-    """Weight precision: 'float32', 'float16', or 'auto' (float16 on CUDA,
-    where cooperative vectors pack only half precision; float32 on LLVM)."""
-    seed: int = 0
-    """Seed of the weight initialisation."""
 
     def __post_init__(self):
-        check_numbers(self, positive=('hidden', 'layers', 'n_features', 'color_hidden', 'color_layers',
-                                      'beta', 'omega_0', 'init_radius', 'fd_step'),
-                      at_least_zero=('multires', 'multires_view', 'seed'))
-        check_numbers(self, finite=('init_variance',))
-        if not self.init_radius < Field.bound:
-            raise ReneusError(f'neus: init_radius={self.init_radius!r}; expected a radius below '
-                              f'the field bound {Field.bound}')
+        super().__post_init__()
+        check_numbers(self, positive=('hidden', 'layers', 'beta', 'omega_0', 'fd_step'),
+                      at_least_zero=('multires',))
         check_choice(self, 'activation', ('softplus', 'sine'))
-        check_choice(self, 'dtype', ('auto', 'float32', 'float16'))
 
 
 def positional_encoding(values: list, octaves: int) -> list:
@@ -202,7 +211,81 @@ def build_mlp(n_in: int, width: int, depth: int, heads: tuple[int, ...], activat
     return body.alloc(tensor_t, n_in)
 
 
-class NeuSField(Field):
+class NeuralField(Field):
+    """What the neural fields share: their configuration, the weights' precision, NeuS's
+    radiance network f(x, v, n, feature) and the sharpness s = exp(10 variance).
+
+    A subclass builds its SDF network after ``super().__init__`` (which draws no
+    random numbers), then the radiance network with :meth:`_radiance_network`,
+    and stores its own parameters in :meth:`_store`.
+    """
+
+    Config: ClassVar[type] = NeuralFieldConfig
+
+    def __init__(self, config=None, **kwargs):
+        try:
+            cfg = dataclasses.replace(config or self.Config(), **kwargs)
+        except TypeError:
+            known = {f.name for f in dataclasses.fields(self.Config)}
+            raise ReneusError(f'{type(self).__name__}: unknown option(s) {sorted(set(kwargs) - known)}; '
+                              f'expected some of {sorted(known)}') from None
+        self.cfg = cfg
+        self.n_features = cfg.n_features
+        self._net_t, self._tensor_t = storage_types(cfg.dtype)
+        self._rng = np.random.default_rng(cfg.seed)
+        # Opaque, so kernels read it from memory: a new value needs no recompilation.
+        self._variance = dr.opaque(mi.Float, cfg.init_variance)
+
+    def _radiance_network(self):
+        """NeuS's radiance network, initialised as PyTorch's nn.Linear, packed."""
+        cfg = self.cfg
+        n_color = 3 + 3 * (1 + 2 * cfg.multires_view) + 3 + cfg.n_features
+        color = build_mlp(n_color, cfg.color_hidden, cfg.color_layers, (3,), nn.ReLU(), self._tensor_t)
+        fan_in_uniform_init(color, self._tensor_t, self._rng)
+        return nn.pack(color, layout='training')
+
+    def _to_net(self, values: list) -> nn.CoopVec:
+        return nn.CoopVec(*[self._net_t(v) for v in values])
+
+    def radiance(self, x: mi.Point3f, v: mi.Vector3f, n: mi.Vector3f,
+                 feature: list[mi.Float]) -> mi.Color3f:
+        if len(feature) != self.n_features:
+            raise ReneusError(f'{type(self).__name__}.radiance: {len(feature)} feature channels, '
+                              f'expected {self.n_features}')
+        inputs = [x.x, x.y, x.z, *positional_encoding([v.x, v.y, v.z], self.cfg.multires_view),
+                  n.x, n.y, n.z, *feature]
+        (rgb,) = self.color_network(self._to_net(inputs))
+        r, g, b = [mi.Float(c) for c in rgb]
+        return dr.rcp(1.0 + dr.exp(-mi.Color3f(r, g, b)))
+
+    def inv_s(self) -> mi.Float:
+        return dr.exp(10.0 * self._variance)
+
+    # ---------------------------------------------------------- parameters
+    def params(self) -> dict:
+        return {'color.weights': self.color_network['weights'], 'variance': self._variance}
+
+    def _assign(self, key: str, value) -> None:
+        current = self.params().get(key)
+        if current is None:
+            super()._assign(key, value)
+        if dr.width(value) != dr.width(current):
+            raise ReneusError(f'{type(self).__name__}: parameter {key!r} given {dr.width(value)} values, '
+                              f'expected {dr.width(current)}')
+        self._store(key, value if type(value) is type(current) else type(current)(value))
+
+    def _store(self, key: str, value) -> None:
+        if key == 'variance':
+            self._variance = value
+        else:
+            # In place: the layers' MatrixViews point into this buffer.
+            self.color_network['weights'] = value
+
+    def config(self) -> dict:
+        return dataclasses.asdict(self.cfg)
+
+
+class NeuSField(NeuralField):
     """NeuS's SDF, radiance and sharpness, trained inside the container.
 
     - SDF network: γ(x) (``multires`` octaves + identity) → ``layers`` x
@@ -248,17 +331,9 @@ class NeuSField(Field):
     Config = NeuSFieldConfig
 
     def __init__(self, config: NeuSFieldConfig | None = None, **kwargs):
-        try:
-            cfg = dataclasses.replace(config or NeuSFieldConfig(), **kwargs)
-        except TypeError:
-            known = {f.name for f in dataclasses.fields(NeuSFieldConfig)}
-            unknown = sorted(set(kwargs) - known)
-            raise ReneusError(f'NeuSField: unknown option(s) {unknown}; expected some of {sorted(known)}') from None
-        self.cfg = cfg
-        self.n_features = cfg.n_features
+        super().__init__(config, **kwargs)
+        cfg, tensor_t, rng = self.cfg, self._tensor_t, self._rng
         self.fd_step = float(cfg.fd_step)
-        self._net_t, tensor_t = storage_types(cfg.dtype)
-        rng = np.random.default_rng(cfg.seed)
 
         n_pos = 3 * (1 + 2 * cfg.multires)
         if cfg.activation == 'softplus':
@@ -272,19 +347,10 @@ class NeuSField(Field):
         else:
             siren_init(sdf, tensor_t, cfg.omega_0, rng, head_gains=(_SIREN_SDF_GAIN, 1.0))
 
-        n_color = 3 + 3 * (1 + 2 * cfg.multires_view) + 3 + cfg.n_features
-        color = build_mlp(n_color, cfg.color_hidden, cfg.color_layers, (3,), nn.ReLU(), tensor_t)
-        fan_in_uniform_init(color, tensor_t, rng)
-
         self.sdf_network = nn.pack(sdf, layout='training')
-        self.color_network = nn.pack(color, layout='training')
-        # Opaque, so kernels read it from memory: a new value needs no recompilation.
-        self._variance = dr.opaque(mi.Float, cfg.init_variance)
+        self.color_network = self._radiance_network()
 
     # ------------------------------------------------------------ networks
-    def _to_net(self, values: list) -> nn.CoopVec:
-        return nn.CoopVec(*[self._net_t(v) for v in values])
-
     @staticmethod
     def _from_net(cv: nn.CoopVec) -> list:
         return [mi.Float(v) for v in cv]
@@ -305,40 +371,12 @@ class NeuSField(Field):
     def sdf(self, x: mi.Point3f) -> mi.Float:
         return self._sdf_net(x, (0,))[0][0]
 
-    def radiance(self, x: mi.Point3f, v: mi.Vector3f, n: mi.Vector3f,
-                 feature: list[mi.Float]) -> mi.Color3f:
-        if len(feature) != self.n_features:
-            raise ValueError(f'NeuSField.radiance: {len(feature)} feature channels, '
-                             f'expected {self.n_features}')
-        inputs = [x.x, x.y, x.z, *positional_encoding([v.x, v.y, v.z], self.cfg.multires_view),
-                  n.x, n.y, n.z, *feature]
-        (rgb,) = self.color_network(self._to_net(inputs))
-        r, g, b = self._from_net(rgb)
-        return dr.rcp(1.0 + dr.exp(-mi.Color3f(r, g, b)))
-
-    def inv_s(self) -> mi.Float:
-        return dr.exp(10.0 * self._variance)
-
     # ---------------------------------------------------------- parameters
     def params(self) -> dict:
-        return {'sdf.weights': self.sdf_network['weights'],
-                'color.weights': self.color_network['weights'],
-                'variance': self._variance}
+        return {'sdf.weights': self.sdf_network['weights'], **super().params()}
 
-    def _assign(self, key: str, value) -> None:
-        current = self.params().get(key)
-        if current is None:
-            super()._assign(key, value)
-        if dr.width(value) != dr.width(current):
-            raise ValueError(f'NeuSField: parameter {key!r} given {dr.width(value)} values, '
-                             f'expected {dr.width(current)}')
-        if type(value) is not type(current):
-            value = type(current)(value)
-        if key == 'variance':
-            self._variance = value
+    def _store(self, key: str, value) -> None:
+        if key == 'sdf.weights':
+            self.sdf_network['weights'] = value
         else:
-            # In place: the layers' MatrixViews point into this buffer.
-            (self.sdf_network if key == 'sdf.weights' else self.color_network)['weights'] = value
-
-    def config(self) -> dict:
-        return dataclasses.asdict(self.cfg)
+            super()._store(key, value)
