@@ -13,6 +13,7 @@ from reneus_mi.errors import ReneusError
 from reneus_mi.fields import FIELD_CONFIGS, Field, load_field
 from reneus_mi.frame import FieldFrame
 from reneus_mi.optics import interface
+from reneus_mi.pixel_sampler import opaque_seed
 from reneus_mi.presets import preset
 from reneus_mi.ray_samplers import SamplerConfig
 from reneus_mi.volume_rendering import volume_render
@@ -197,7 +198,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         n = dr.width(ray.o)
         jitter = None
         if self.state.seed is not None:
-            jitter = mi.PCG32(n, initstate=mi.UInt64(self.state.seed)).next_float32()
+            jitter = mi.PCG32(n, initstate=opaque_seed(self.state.seed)).next_float32()
         acc = _Accumulator(n)
         rays = _Rays(o=mi.Point3f(ray.o), d=mi.Vector3f(ray.d), β=dr.ones(mi.Float, n),
                      camera=dr.arange(mi.UInt32, n))
@@ -209,6 +210,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         L = acc.result()
         return RayTreeResult(color=self.tonemap(L), L=L, mask=acc.mask, sparsity=acc.sparsity,
                              eikonal=acc.eikonal, n_samples=acc.n_samples, normal=acc.normal)
+
+    def _cos_anneal_ratio(self):
+        """The step's ratio, opaque: kernels read it from memory rather than compile anew for each value."""
+        ratio = self.state.cos_anneal_ratio
+        return ratio if ratio == 1.0 else dr.opaque(mi.Float, ratio)
 
     def tonemap(self, L: mi.Color3f) -> mi.Color3f:
         """The paper's 𝒢(C) = C^(1/γ); the clamp keeps its derivative finite at 0."""
@@ -267,7 +273,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         u = None if jitter is None else dr.gather(mi.Float, jitter, s.camera)
         vr = volume_render(self.field, self.sampler, self.frame.to_field(s.o), s.d,
                            dr.zeros(mi.Float, dr.width(seg)), t / self.frame.scale, jitter=u,
-                           cos_anneal_ratio=self.state.cos_anneal_ratio)
+                           cos_anneal_ratio=self._cos_anneal_ratio())
         acc.add(s.camera, s.β * vr.color, mi.Bool(True))
         acc.add_segment(s.camera, s.β * vr.normal, 1.0 - vr.transmittance, vr.eikonal, vr.n_samples)
         dr.scatter(T, vr.transmittance, seg)
@@ -296,7 +302,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             # Russian roulette: a branch of weight β < threshold survives with probability
             # β / threshold and then carries weight threshold; the tree's mean is unchanged.
             p = dr.minimum(dr.detach(β_all) / threshold, 1.0)
-            u = mi.PCG32(2 * n, initstate=mi.UInt64(self._roulette_seed(depth))).next_float32()
+            u = mi.PCG32(2 * n, initstate=opaque_seed(self._roulette_seed(depth))).next_float32()
             alive &= u < p
             β_all = β_all / dr.select(p > 0.0, p, 1.0)
         keep = dr.compress(alive)

@@ -24,6 +24,11 @@ def step_seed(seed: int, step: int, stream: int) -> int:
     return ((seed & 0xFFFFFF) << 40) ^ ((step & 0xFFFFFFFF) << 4) ^ stream
 
 
+def opaque_seed(seed: int) -> mi.UInt64:
+    """A seed that kernels read from memory: a literal would make every step compile anew."""
+    return dr.opaque(mi.UInt64, seed)
+
+
 class PixelSampler:
     """Masked pixels of all views, their colours and their camera rays, on the device."""
 
@@ -46,7 +51,7 @@ class PixelSampler:
 
     def batch(self, step: int, n: int) -> tuple[mi.Ray3f, mi.Color3f]:
         """``n`` camera rays through random masked pixels, and the photographs' colours there."""
-        rng = mi.PCG32(n, initstate=mi.UInt64(step_seed(self.seed, step, PIXELS)))
+        rng = mi.PCG32(n, initstate=opaque_seed(step_seed(self.seed, step, PIXELS)))
         index = dr.gather(mi.UInt32, self.pixels, rng.next_uint32_bounded(self.n_pixels))
         return self.rays(index), self.color(index)
 

@@ -67,12 +67,13 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
     ``sampler`` places the samples (``SamplerConfig(...).setup()``). ``d`` must be
     unit length. ``jitter`` (one value in [0, 1) per segment, or None for the
     stratum midpoints) offsets the coarse samples during training.
-    ``cos_anneal_ratio`` is NeuS's: 0 uses the smoothed cosine (1 - cos)/2 early in
+    ``cos_anneal_ratio`` (a float, or an opaque ``mi.Float`` that changes without recompiling)
+    is NeuS's: 0 uses the smoothed cosine (1 - cos)/2 early in
     training, 1 the true cosine. A segment with ``t_far <= t_near`` contributes
     nothing (transmittance 1), so callers can mask lanes that way; so does one
     that the sampler's occupancy grid finds empty, at no field evaluation.
     """
-    if not 0.0 <= cos_anneal_ratio <= 1.0:
+    if isinstance(cos_anneal_ratio, (int, float)) and not 0.0 <= cos_anneal_ratio <= 1.0:
         raise ValueError(f'volume_render: cos_anneal_ratio={cos_anneal_ratio!r}, expected a value in [0, 1]')
     n_rays = _check_widths(o=o, d=d, t_near=t_near, t_far=t_far, jitter=jitter)
     if n_rays == 0:
