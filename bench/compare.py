@@ -29,7 +29,7 @@ log, ``mesh.ply`` raw, plus ``mesh_largest.ply`` and ``evaluation.json``). It is
 resumable: a method whose ``mesh.ply`` exists is not trained again, and one
 killed mid-way continues from its checkpoint.
 
-``--config small`` is sized for a 2-core CPU (the demo's field and sampling,
+``--config small`` is sized for a 2-core CPU (the small preset's field and sampling,
 16 views at 32x32); ``--config full`` is the paper's (60 views at 800x800,
 NeuS-sized networks, 64+64 samples, 1024 rays, 200k iterations: a GPU job).
 """
@@ -65,9 +65,8 @@ PAPER = {'insect': (5.89, 21.71, 1.10), 'statuette': (0.79, 25.44, 2.26), 'vase'
 
 def configs() -> dict:
     """Preset, dataset and training changes of each configuration."""
-    from reneus_mi.optimize import DEMO_DATA, DEMO_PRESET
     return {
-        'small': {'preset': DEMO_PRESET, 'data': dict(DEMO_DATA),
+        'small': {'preset': 'small', 'data': {'views': 16, 'res': 32, 'spp': 256},
                   'train': {'iterations': 200, 'validate_every': 0, 'checkpoint_every': 50,
                             'mesh_resolution': 128, 'postprocess': 'none'}},
         # The paper preset: NeuS's 256x8 SDF MLP, 256x4 colour MLP, 64 coarse + 64 fine samples.

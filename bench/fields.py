@@ -24,7 +24,7 @@ import numpy as np
 import reneus_mi  # noqa: F401  (variant)
 from reneus_mi.fields import HashGridField, NeuSField
 
-#: The demo field of the README (reneus_mi.optimize.DEMO_INTEGRATOR).
+#: The small preset's NeuS field (reneus_mi.presets).
 NEUS_DEMO = dict(hidden=32, layers=4, n_features=8, color_hidden=32, color_layers=2, multires=4,
                  multires_view=2, init_radius=0.3)
 

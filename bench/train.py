@@ -1,6 +1,6 @@
 """Training speed and peak memory of one reconstruction step (Trainer.step).
 
-    python bench/train.py [--presets demo paper] [--batch 1024 256] [--steps 5]
+    python bench/train.py [--presets fast small] [--batch 1024 256] [--steps 5]
 
 For each preset (reneus_mi.presets) and batch size, a fresh process builds the
 scene of the embedded demo dataset (the statuette in its glass block, 16 views
@@ -10,7 +10,7 @@ compile the kernels; timed apart) and then ``--steps`` timed steps of
 each ends with ``dr.sync_thread``). It prints iterations and camera rays per
 second and the child's peak resident memory (``ru_maxrss``).
 
-Presets: ``demo`` (NeuS 32x4, 32 + 16 samples per inside segment), ``cpu``
+Presets: ``fast`` (hash grid, 24 + 8 samples), ``small`` (NeuS 32x4, 32 + 16 samples per inside segment), ``cpu``
 (NeuS 64x4, 32 + 32), ``paper`` (NeuS 256x8 with 256 features, radiance
 256x4, 64 + 64 samples in 4 up-sampling rounds). All render with D_re = 2.
 ``--timeout`` bounds each child: a setting that
@@ -71,7 +71,7 @@ def child(args) -> None:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     from reneus_mi.presets import PRESETS
-    p.add_argument('--presets', nargs='+', choices=sorted(PRESETS), default=['demo', 'paper'])
+    p.add_argument('--presets', nargs='+', choices=sorted(PRESETS), default=['fast', 'small'])
     p.add_argument('--batch', nargs='+', type=int, default=[1024, 256], help='camera rays per step')
     p.add_argument('--steps', type=int, default=5, help='timed steps')
     p.add_argument('--warmup', type=int, default=2, help='untimed first steps (compilation)')

@@ -9,7 +9,7 @@ writes such a scene). Training settings start from the same preset; the
 options below override them. Results go to the output folder (see
 :mod:`reneus_mi.trainer`); ``--resume`` continues a killed run from its
 ``config.json``. ``--demo`` reconstructs the embedded demo: a small dataset of
-a statuette in a glass block that it first renders with Mitsuba's path tracer.
+an insect (thin legs) in a glass block that it first renders with Mitsuba's path tracer.
 """
 from __future__ import annotations
 
@@ -22,8 +22,8 @@ from reneus_mi.config import TrainConfig
 from reneus_mi.errors import ReneusError, exit_on_error
 
 #: The embedded demo: object, dataset size and preset.
-DEMO_OBJECT = 'statuette'
-DEMO_DATA = {'views': 16, 'res': 32, 'spp': 256}
+DEMO_OBJECT = 'insect'
+DEMO_DATA = {'views': 32, 'res': 64, 'spp': 128}
 DEMO_PRESET = 'demo'
 
 

@@ -6,8 +6,10 @@ preset  what it is for
 ======= ==============================================================
 paper   NeuS's field (256 x 8), 64 + 64 samples: the paper, for a GPU
 cpu     a NeuS field sized for a CPU (64 x 4), 32 + 32 samples
-demo    the embedded demo: a tiny NeuS field (32 x 4), 32 + 16 samples,
-        300 steps of 256 rays (minutes on a 2-core CPU)
+demo    the embedded demo: the fast field at the demo's size (6 levels to
+        128), 1000 steps of 1024 rays (minutes on a 2-core CPU)
+small   a small NeuS field (32 x 4), 32 + 16 samples, 300 steps of 256
+        rays: bench/compare.py --config small, the end-to-end test
 fast    a hash-grid SDF (7 levels to 256, 2^16 entries) with tiny MLPs and
         an analytic gradient, 24 + 8 samples, a 64^3 occupancy grid that
         skips empty segments, λ1 = 0.01: the CPU and GPU workhorse
@@ -37,7 +39,7 @@ PRESETS: dict[str, ReconstructionConfig] = {
                           sampler=SamplerConfig(n_coarse=32, n_fine=32, n_upsample_steps=2),
                           render=RenderConfig()),
         train=TrainConfig(batch_rays=512, learning_rate=1e-3)),
-    'demo': ReconstructionConfig(
+    'small': ReconstructionConfig(
         model=ModelConfig(field=NeuSFieldConfig(hidden=32, n_features=8, color_hidden=32, **_SMALL_NEUS),
                           sampler=SamplerConfig(n_coarse=32, n_fine=16, n_upsample_steps=2),
                           render=RenderConfig()),
@@ -51,6 +53,12 @@ PRESETS: dict[str, ReconstructionConfig] = {
                           render=RenderConfig()),
         train=TrainConfig(iterations=2000, batch_rays=1024, learning_rate=1e-3, warm_up=50,
                           trans_weight=0.01, validate_every=500, mesh_resolution=256)),
+    'demo': ReconstructionConfig(
+        model=ModelConfig(field=HashGridFieldConfig(init_radius=0.3, n_levels=6, finest_resolution=128),
+                          sampler=SamplerConfig(n_coarse=24, n_fine=8, n_upsample_steps=2, occupancy_resolution=64),
+                          render=RenderConfig()),
+        train=TrainConfig(iterations=1000, batch_rays=1024, learning_rate=1e-3, warm_up=50,
+                          trans_weight=0.01, validate_every=250, mesh_resolution=192)),
     'tiny': ReconstructionConfig(
         model=ModelConfig(field=NeuSFieldConfig(hidden=16, layers=2, n_features=8, color_hidden=16,
                                                 color_layers=1, multires=2, multires_view=1, init_radius=0.3),

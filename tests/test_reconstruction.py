@@ -31,7 +31,7 @@ def data(tmp_path_factory):
 def reconstruct(folder, mode, iterations):
     ds = load_dataset(str(folder / 'box'))
     xml = str(folder / f'scene_{mode}.xml')
-    write_scene(ds, xml, preset='demo', mode=mode)
+    write_scene(ds, xml, preset='small', mode=mode)
     spec = spec_of_scene(xml, None)
     spec.config = replace(spec.config, **{'train.iterations': iterations, 'train.validate_every': 0,
                                           'train.checkpoint_every': 0, 'train.mesh_resolution': 96})
