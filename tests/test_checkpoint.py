@@ -297,3 +297,19 @@ def test_nan_geometry_stops_with_training_error(scene_xml, tmp_path):
     assert proc.returncode == 3, f'exit {proc.returncode}: {proc.stderr[-2000:]}'
     assert proc.stdout.startswith('step 3: ')
     assert checkpoint.load_meta(str(tmp_path / 'checkpoint.npz'))['iteration'] == 3
+
+
+def test_loss_scaler_state_survives_a_checkpoint(scene_xml, tmp_path):
+    """The CUDA path's GradScaler (float16 networks): its scale and growth counter are
+    checkpointed, so a resumed run scales its loss as the unbroken one (checked on the CPU)."""
+    from drjit.opt import GradScaler
+    trainer = new_trainer(scene_xml, tmp_path)
+    trainer.scaler = GradScaler(init_scale=mi.Float(2.0 ** 16))
+    trainer.scaler.scale_factor = mi.Float(1024.0)
+    trainer.scaler.it = 7
+    trainer.save_checkpoint()
+    resumed = new_trainer(scene_xml, tmp_path)
+    resumed.scaler = GradScaler(init_scale=mi.Float(2.0 ** 16))
+    names = {key: resumed._name(key) for key in resumed.opt.keys()}
+    checkpoint.restore(resumed.checkpoint_path, resumed.opt, names, resumed.scaler)
+    assert float(resumed.scaler.scale_factor[0]) == 1024.0 and resumed.scaler.it == 7
