@@ -103,7 +103,8 @@ def run(args) -> str:
             raise ReneusError(f'{out} already holds a run; continue it with --resume or choose '
                               'another --output')
         guards.check_run_dir(out, inputs=[args.scene, args.data])
-        scene = make_demo(os.path.join(out, 'data')) if args.demo else args.scene
+        # The demo's photographs go beside the run folder: no run ever writes where its inputs are.
+        scene = make_demo(os.path.abspath(out).rstrip(os.sep) + '_data') if args.demo else args.scene
         spec = spec_of_scene(scene, args.data)
     given = cli.given_arguments(TrainConfig, args)
     spec.config = replace(spec.config, **{f'train.{k}': v for k, v in given.items()})

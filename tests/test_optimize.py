@@ -308,3 +308,15 @@ def test_extract_rejects_a_file_that_is_not_a_checkpoint(tmp_path):
     assert message.startswith('error: ') and str(tmp_path / 'field.npz') in message
     assert 'not a reneus-mi checkpoint' in message
     assert not (tmp_path / 'm.ply').exists()
+
+
+def test_time_budget_stops_with_a_mesh(scene_xml, tmp_path):
+    """--max-minutes ends training early with the final checkpoint, the mesh and a message saying so."""
+    out = tmp_path / 'run'
+    proc = cli(scene_xml, '-o', out, '--iterations', '100000', '--max-minutes', '0.05', '--batch-rays', '64',
+               '--validate-every', '0', '--checkpoint-every', '0', '--mesh-resolution', '16', '--quiet')
+    stdout, _ = finish(proc)
+    assert 'stopped by the time budget (0.05 min) after' in stdout
+    done = checkpoint.load_meta(str(out / 'checkpoint.npz'))['iteration']
+    assert 0 < done < 100000 and logged(out / 'log.jsonl')[-1] == done
+    assert len(trimesh.load(out / 'mesh.ply', force='mesh').faces) > 0

@@ -163,12 +163,12 @@ def test_training_steps_reuse_their_kernels(scene_xml, tmp_path):
                                           'model.sampler.occupancy_update_every': 1000})
     trainer = runs.make_trainer(spec, str(tmp_path / 'run'))
 
-    for _ in range(3):
+    for _ in range(8):
         trainer.step()
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory):
         for _ in range(12):
             trainer.step()
         new = [k for k in dr.kernel_history() if k.get('type') == dr.KernelType.JIT and not k['cache_hit']]
-    # Measured: 0 (a branch of the ray tree taken for the first time may add one); with the
-    # batch seed a literal, the test fails.
-    assert len(new) <= 6, len(new)
+    # Fewer than one per step: a branch of the ray tree taken for the first time compiles
+    # its kernels (measured 0 to 8); a per-step literal compiles at least one every step.
+    assert len(new) < 12, len(new)
