@@ -24,48 +24,42 @@ from __future__ import annotations
 
 import copy
 
-from reneus_mi.config import ModelConfig, ReconstructionConfig, RenderConfig, TrainConfig
+from reneus_mi.config import ModelConfig, ReconstructionConfig, TrainConfig
 from reneus_mi.errors import ReneusError
 from reneus_mi.fields import HashGridFieldConfig, NeuSFieldConfig
 from reneus_mi.ray_samplers import SamplerConfig
 
-#: NeuS's field at CPU size (the demo's and the cpu preset's architecture differ in width only).
+#: NeuS's field at CPU size (the small and the cpu preset's architecture differ in width only).
 _SMALL_NEUS = dict(layers=4, color_layers=2, multires=4, multires_view=2, init_radius=0.3)
+#: The hash-grid presets' sampling and training. λ1 = 0.1 (the paper's L_trans weight) empties a
+#: hash grid: on the small comparison's statuette, 300 steps gave Chamfer-L1 x100 23.0 with it
+#: and 2.1 with 0.01 (the small NeuS field: 7.3).
+_GRID_SAMPLER = SamplerConfig(n_coarse=24, n_fine=8, n_upsample_steps=2, occupancy_resolution=64)
+_GRID_TRAIN = dict(batch_rays=1024, learning_rate=1e-3, warm_up=50, trans_weight=0.01)
 
 PRESETS: dict[str, ReconstructionConfig] = {
     'paper': ReconstructionConfig(),
     'cpu': ReconstructionConfig(
-        model=ModelConfig(field=NeuSFieldConfig(hidden=64, n_features=16, color_hidden=64, **_SMALL_NEUS),
-                          sampler=SamplerConfig(n_coarse=32, n_fine=32, n_upsample_steps=2),
-                          render=RenderConfig()),
-        train=TrainConfig(batch_rays=512, learning_rate=1e-3)),
+        ModelConfig(NeuSFieldConfig(hidden=64, n_features=16, color_hidden=64, **_SMALL_NEUS),
+                    SamplerConfig(n_coarse=32, n_fine=32, n_upsample_steps=2)),
+        TrainConfig(batch_rays=512, learning_rate=1e-3)),
     'small': ReconstructionConfig(
-        model=ModelConfig(field=NeuSFieldConfig(hidden=32, n_features=8, color_hidden=32, **_SMALL_NEUS),
-                          sampler=SamplerConfig(n_coarse=32, n_fine=16, n_upsample_steps=2),
-                          render=RenderConfig()),
-        train=TrainConfig(iterations=300, batch_rays=256, learning_rate=2e-3, warm_up=50,
-                          validate_every=100, mesh_resolution=128)),
-    # λ1 = 0.1 (the paper's L_trans weight) empties a hash grid: on the demo's statuette,
-    # 300 steps gave Chamfer-L1 x100 23.0 with it and 2.1 with 0.01 (NeuS's MLP: 7.3).
+        ModelConfig(NeuSFieldConfig(hidden=32, n_features=8, color_hidden=32, **_SMALL_NEUS),
+                    SamplerConfig(n_coarse=32, n_fine=16, n_upsample_steps=2)),
+        TrainConfig(iterations=300, batch_rays=256, learning_rate=2e-3, warm_up=50, validate_every=100,
+                    mesh_resolution=128)),
     'fast': ReconstructionConfig(
-        model=ModelConfig(field=HashGridFieldConfig(init_radius=0.3, n_levels=7, finest_resolution=256),
-                          sampler=SamplerConfig(n_coarse=24, n_fine=8, n_upsample_steps=2, occupancy_resolution=64),
-                          render=RenderConfig()),
-        train=TrainConfig(iterations=2000, batch_rays=1024, learning_rate=1e-3, warm_up=50,
-                          trans_weight=0.01, validate_every=500, mesh_resolution=256)),
+        ModelConfig(HashGridFieldConfig(init_radius=0.3, n_levels=7, finest_resolution=256), _GRID_SAMPLER),
+        TrainConfig(iterations=2000, validate_every=500, mesh_resolution=256, **_GRID_TRAIN)),
     'demo': ReconstructionConfig(
-        model=ModelConfig(field=HashGridFieldConfig(init_radius=0.3, n_levels=6, finest_resolution=128),
-                          sampler=SamplerConfig(n_coarse=24, n_fine=8, n_upsample_steps=2, occupancy_resolution=64),
-                          render=RenderConfig()),
-        train=TrainConfig(iterations=1000, batch_rays=1024, learning_rate=1e-3, warm_up=50,
-                          trans_weight=0.01, validate_every=250, mesh_resolution=192)),
+        ModelConfig(HashGridFieldConfig(init_radius=0.3, n_levels=6, finest_resolution=128), _GRID_SAMPLER),
+        TrainConfig(iterations=1000, validate_every=250, mesh_resolution=192, **_GRID_TRAIN)),
     'tiny': ReconstructionConfig(
-        model=ModelConfig(field=NeuSFieldConfig(hidden=16, layers=2, n_features=8, color_hidden=16,
-                                                color_layers=1, multires=2, multires_view=1, init_radius=0.3),
-                          sampler=SamplerConfig(n_coarse=8, n_fine=8, n_upsample_steps=2),
-                          render=RenderConfig()),
-        train=TrainConfig(iterations=6, batch_rays=64, warm_up=2, validate_every=0, checkpoint_every=0,
-                          mesh_resolution=16)),
+        ModelConfig(NeuSFieldConfig(hidden=16, layers=2, n_features=8, color_hidden=16, color_layers=1,
+                                    multires=2, multires_view=1, init_radius=0.3),
+                    SamplerConfig(n_coarse=8, n_fine=8, n_upsample_steps=2)),
+        TrainConfig(iterations=6, batch_rays=64, warm_up=2, validate_every=0, checkpoint_every=0,
+                    mesh_resolution=16)),
 }
 
 
