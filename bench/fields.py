@@ -104,7 +104,7 @@ def main(argv=None) -> int:
           f'load average {os.getloadavg()[0]:.1f} at the start (other processes share the CPU); '
           f'{args.points} points, best of {args.repeat}')
     print("| field | params | fwd first s | fwd ms | fwd Mpts/s | fwd+bwd first s | fwd+bwd ms "
-          f"| fwd+bwd cpu ms | fwd+bwd kpts/s | speed-up (cpu) |")
+          "| fwd+bwd cpu ms | fwd+bwd kpts/s | speed-up (cpu) |")
     print('| --- ' * 10 + '|')
     reference = None
     for name in args.fields:
