@@ -556,24 +556,14 @@ def test_synth_beyond_memory(tmp_path, small_machine):
             '60 views at 100000x100000', 'needs about', watch=[tmp_path])
 
 
-def test_synth_no_views(tmp_path):
-    refused(synth.main, ['sphere', '-o', tmp_path / 'out', '--views', 0], 'views=0',
-            'expected positive numbers', watch=[tmp_path])
-
-
-def test_synth_unknown_object(tmp_path):
-    refused(synth.main, ['nope', '-o', tmp_path / 'out', '--views', 2, '--res', 8],
-            "'nope'", 'neither an object name', watch=[tmp_path])
-
-
-def test_synth_zero_spp(tmp_path):
-    refused(synth.main, ['sphere', '-o', tmp_path / 'out', '--spp', 0], 'spp=0',
-            'expected a positive integer', watch=[tmp_path])
-
-
-def test_synth_negative_margin(tmp_path):
-    refused(synth.main, ['sphere', '-o', tmp_path / 'out', '--margin', -1], 'margin=-1',
-            'expected a number >= 0', watch=[tmp_path])
+@pytest.mark.parametrize('args, parts', [
+    (['sphere', '--views', 0], ['views=0', 'expected positive numbers']),
+    (['nope', '--views', 2, '--res', 8], ["'nope'", 'neither an object name']),
+    (['sphere', '--spp', 0], ['spp=0', 'expected a positive integer']),
+    (['sphere', '--margin', -1], ['margin=-1', 'expected a number >= 0']),
+], ids=['no_views', 'unknown_object', 'zero_spp', 'negative_margin'])
+def test_synth_refuses(tmp_path, args, parts):
+    refused(synth.main, [args[0], '-o', tmp_path / 'out', *args[1:]], *parts, watch=[tmp_path])
 
 
 # =========================================================== real processes
