@@ -16,6 +16,7 @@ from reneus_mi.optics import interface
 from reneus_mi.pixel_sampler import opaque_seed
 from reneus_mi.presets import preset
 from reneus_mi.ray_samplers import SamplerConfig
+from reneus_mi.surroundings import Surroundings
 from reneus_mi.volume_rendering import volume_render
 
 VARIANT = mi.variant()
@@ -130,7 +131,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     integrator's id (e.g. ``field.sdf.weights``). They are the field's own
     arrays: ``params.update()`` writes into the field, ``mi.render(scene,
     params=params)`` differentiates with respect to them, and after training
-    ``mi.traverse`` shows the trained values.
+    ``mi.traverse`` shows the trained values. Once the integrator has seen its
+    scene (:meth:`bind`, or a first render) the container's IOR
+    ``container.eta``, its pose (``container_pose``) and the light (``light``
+    other than ``emitter``) appear beside them (:mod:`reneus_mi.surroundings`).
     """
 
     def __init__(self, props: mi.Properties):
@@ -138,7 +142,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         mi.CppADIntegrator.__init__(self, props)
         self.preset, model, field, self.frame, self.dataset = _read_properties(props)
         self.state = StepState()
-        self._container = None
+        self._bound = None
         self.configure(model, field)
 
     def configure(self, model: ModelConfig | None = None, field: Field | None = None) -> None:
@@ -154,14 +158,24 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         self.model = model
         self.field = field if field is not None else model.field.setup()
         self.sampler = model.sampler.setup()
+        # The surroundings follow the model's light and pose settings: built anew at the next bind.
+        self._bound = None
 
     # ------------------------------------------------------------ Mitsuba API
     def aov_names(self):
         return list(AOV_NAMES) if self.model.render.aovs else []
 
     def traverse(self, cb):
-        for key, value in self.field.params().items():
+        for key, value in self.params().items():
             cb.put(key, value, mi.ParamFlags.Differentiable)
+
+    def params(self) -> dict:
+        """The integrator's arrays as ``mi.traverse`` names them: the field's, and the
+        surroundings' once bound to a scene."""
+        out = dict(self.field.params())
+        if self._bound is not None:
+            out.update(self._bound[1].params())
+        return out
 
     def parameters_changed(self, keys):
         # SceneParameters wrote the new values into the field's own arrays.
@@ -194,7 +208,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         both come here. The schedule of the current training step is
         :attr:`state` (see :meth:`begin_step`).
         """
-        container = self._bind(scene)
+        surroundings = self.bind(scene)
         n = dr.width(ray.o)
         jitter = None
         if self.state.seed is not None:
@@ -204,9 +218,9 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                      camera=dr.arange(mi.UInt32, n))
         rays = rays.take(dr.compress(dr.full(mi.Bool, True, n) & active))
         if self.model.render.mode == 'neus':
-            self._trace_neus(scene, rays, acc, jitter)
+            self._trace_neus(surroundings, rays, acc, jitter)
         else:
-            self._trace_container(scene, container.eta, rays, acc, jitter)
+            self._trace_container(scene, surroundings, rays, acc, jitter)
         L = acc.result()
         return RayTreeResult(color=self.tonemap(L), L=L, mask=acc.mask, sparsity=acc.sparsity,
                              eikonal=acc.eikonal, n_samples=acc.n_samples, normal=acc.normal)
@@ -225,31 +239,45 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     # One generation of the ray tree per loop turn: rays are compressed to the
     # live ones so that the 2^k growth costs nothing for rays that escaped.
-    def _trace_container(self, scene, eta, rays, acc, jitter):
+    def _trace_container(self, scene, surroundings, rays, acc, jitter):
         render = self.model.render
         plus = render.mode == 'neus_plus'
         depth_limit = 1 if plus else render.max_depth
+        ambient = surroundings.ambient
         for depth in range(depth_limit + 1):
             if rays.size == 0:
                 return
-            si = scene.ray_intersect(mi.Ray3f(rays.o, rays.d))
-            hit = si.is_valid()
+            hit = self._intersect(scene, surroundings, rays)
             if depth == 0:
-                acc.mark_container(rays.camera, hit)
-            leaving = hit & (dr.dot(rays.d, si.n) > 0)
-            acc.add(rays.camera, rays.β * _ambient(scene, rays.d), ~hit)
-            T = self._render_inside(rays, si.t, leaving, acc, jitter)
+                acc.mark_container(rays.camera, hit.valid)
+            leaving = hit.valid & (dr.dot(rays.d, hit.n) > 0)
+            acc.add(rays.camera, rays.β * ambient(rays.d), ~hit.valid)
+            T = self._render_inside(rays, hit.t, leaving, acc, jitter)
             if plus and depth == 1:
                 # NeuS+: the light beyond the segment arrives straight, unrefracted.
-                acc.add(rays.camera, rays.β * T * _ambient(scene, rays.d), leaving)
+                acc.add(rays.camera, rays.β * T * ambient(rays.d), leaving)
                 return
             if depth == depth_limit:
                 if render.terminal == 'ambient':
-                    acc.add(rays.camera, rays.β * T * _ambient(scene, rays.d), hit)
+                    acc.add(rays.camera, rays.β * T * ambient(rays.d), hit.valid)
                 return
-            rays = self._interface(rays, si, hit, T, eta, reflect=not plus, depth=depth)
+            rays = self._interface(rays, hit, T, surroundings.eta, reflect=not plus, depth=depth)
 
-    def _trace_neus(self, scene, rays, acc, jitter):
+    def _intersect(self, scene, surroundings, rays) -> '_Hit':
+        """The rays' next container interface: distance, point, normals (differentiable in the pose)."""
+        pose = surroundings.pose
+        if pose is None:
+            si = scene.ray_intersect(mi.Ray3f(rays.o, rays.d))
+            return _Hit(t=si.t, p=si.p, n=si.n, n_s=si.sh_frame.n, valid=si.is_valid())
+        # The container as loaded, seen by the rays taken into its frame: t is the same
+        # parameter along both rays when the direction keeps its length.
+        o_c, d_c = pose.to_container(rays.o, rays.d)
+        si = scene.ray_intersect(mi.Ray3f(o_c, d_c))
+        n_s = _shading_normal(surroundings.shapes, si, o_c + si.t * d_c)
+        return _Hit(t=si.t, p=mi.Point3f(rays.o + si.t * rays.d), n=pose.normal_to_world(si.n),
+                    n_s=pose.normal_to_world(n_s), valid=si.is_valid())
+
+    def _trace_neus(self, surroundings, rays, acc, jitter):
         # Plain NeuS: the field's unit bounding sphere, ambient beyond it.
         o = self.frame.to_field(rays.o)
         b = dr.dot(o, rays.d)
@@ -260,7 +288,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         t_near = dr.maximum(-b - dr.safe_sqrt(disc), 0.0)
         rays.o = mi.Point3f(rays.o + rays.d * (t_near * self.frame.scale))
         T = self._render_inside(rays, (t_far - t_near) * self.frame.scale, inside, acc, jitter)
-        acc.add(rays.camera, rays.β * T * _ambient(scene, rays.d), mi.Bool(True))
+        acc.add(rays.camera, rays.β * T * surroundings.ambient(rays.d), mi.Bool(True))
 
     def _render_inside(self, rays, t_far, inside, acc, jitter) -> mi.Float:
         """Volume render the rays' segments [0, t_far] where ``inside``; return T (1 elsewhere)."""
@@ -282,9 +310,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     def _roulette_seed(self, depth: int) -> int:
         return (((self.state.seed or 0) * 0x9E3779B1) ^ (depth + 1) * 0x85EBCA77) & 0xFFFFFFFFFFFFFFFF
 
-    def _interface(self, rays, si, hit, T, eta, reflect: bool, depth: int = 0):
+    def _interface(self, rays, hit, T, eta, reflect: bool, depth: int = 0):
         """Spawn the next generation: reflected (β·T·R) and refracted (β·T·(1-R)) rays."""
-        R, d_r, d_t = interface(rays.d, si.n, eta)
+        # Smooth containers bend light by their shading normals, as Mitsuba's dielectric does.
+        R, d_r, d_t = interface(rays.d, hit.n_s, eta)
         β = rays.β * T
         if reflect:
             β_r, β_t = β * R, β * (1.0 - R)
@@ -296,7 +325,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         refracted = j >= n
         lane = dr.select(refracted, j - n, j)
         β_all = dr.select(refracted, dr.gather(mi.Float, β_t, lane), dr.gather(mi.Float, β_r, lane))
-        alive = dr.gather(mi.Bool, hit, lane) & (dr.detach(β_all) > 0.0)
+        alive = dr.gather(mi.Bool, hit.valid, lane) & (dr.detach(β_all) > 0.0)
         threshold = self.model.render.rr_threshold
         if threshold > 0.0:
             # Russian roulette: a branch of weight β < threshold survives with probability
@@ -311,17 +340,17 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         lane = dr.gather(mi.UInt32, lane, keep)
         refracted = dr.gather(mi.Bool, refracted, keep)
         d = dr.select(refracted, dr.gather(mi.Vector3f, d_t, lane), dr.gather(mi.Vector3f, d_r, lane))
-        si_k = dr.gather(mi.SurfaceInteraction3f, si, lane)
-        return _Rays(o=si_k.spawn_ray(d).o, d=d, β=dr.gather(mi.Float, β_all, keep),
-                     camera=dr.gather(mi.UInt32, rays.camera, lane))
+        o = _offset(dr.gather(mi.Point3f, hit.p, lane), dr.gather(type(hit.n), hit.n, lane), d)
+        return _Rays(o=o, d=d, β=dr.gather(mi.Float, β_all, keep), camera=dr.gather(mi.UInt32, rays.camera, lane))
 
     # ------------------------------------------------------------ the scene
-    def _bind(self, scene: mi.Scene) -> '_Container':
-        """The scene's container, checked once per scene (its shapes identify it)."""
+    def bind(self, scene: mi.Scene) -> Surroundings:
+        """The surroundings of ``scene`` (container, IOR, light), checked and built once per
+        scene (its shapes identify it); their parameters then appear in ``mi.traverse``."""
         key = (tuple(scene.shapes()), scene.environment())
-        if self._container is None or not _same(self._container.key, key):
-            self._container = _Container.of(scene, key, self.model.render.mode)
-        return self._container
+        if self._bound is None or not _same(self._bound[0], key):
+            self._bound = (key, _surroundings(scene, self.model.render))
+        return self._bound[1]
 
     def frame_of(self, scene: mi.Scene) -> FieldFrame:
         """The field's frame bounded by the scene's container (by the unit sphere without one)."""
@@ -330,36 +359,35 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         return dataclasses.replace(self.frame, bounds=bounds)
 
 
-@dataclass
-class _Container:
-    """The container of a scene: its relative IOR η, validated when first seen."""
-    key: tuple
-    eta: mi.Float
-
-    @staticmethod
-    def of(scene: mi.Scene, key: tuple, mode: str) -> '_Container':
-        if mode == 'neus':
-            return _Container(key, mi.Float(1.0))
-        shapes = scene.shapes()
-        if not shapes:
-            raise ReneusError('reneus integrator: the scene has no shape; expected the container '
-                              'as a shape with a dielectric BSDF')
-        eta = None
-        for shape in shapes:
-            bsdf = shape.bsdf()
-            name = bsdf.class_name() if bsdf is not None else 'none'
-            if name != 'SmoothDielectric':
-                raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {name} BSDF; every "
-                                  "shape must be the container, with a smooth 'dielectric' BSDF")
-            value = mi.traverse(bsdf)['eta']
-            if eta is not None and dr.any(dr.abs(value - eta) > 1e-6):
-                raise ReneusError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
-                                  f'container shape has {eta}; expected one IOR')
-            eta = value
-        if scene.environment() is None:
-            raise ReneusError("reneus integrator: the scene has no environment emitter; expected "
-                              "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
-        return _Container(key, mi.Float(eta))
+def _surroundings(scene: mi.Scene, render: RenderConfig) -> Surroundings:
+    """The scene's container and light, checked: every shape a smooth dielectric of one IOR."""
+    shapes = scene.shapes()
+    if scene.environment() is None:
+        raise ReneusError("reneus integrator: the scene has no environment emitter; expected "
+                          "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
+    if render.mode == 'neus':
+        return Surroundings(1.0, shapes, scene.environment(), light=render.light)
+    if not shapes:
+        raise ReneusError('reneus integrator: the scene has no shape; expected the container '
+                          'as a shape with a dielectric BSDF')
+    eta = None
+    for shape in shapes:
+        bsdf = shape.bsdf()
+        name = bsdf.class_name() if bsdf is not None else 'none'
+        if name != 'SmoothDielectric':
+            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {name} BSDF; every "
+                              "shape must be the container, with a smooth 'dielectric' BSDF")
+        value = mi.traverse(bsdf)['eta']
+        if eta is not None and abs(value - eta) > 1e-6:
+            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
+                              f'container shape has {eta}; expected one IOR')
+        eta = value
+    if render.container_pose and not all(isinstance(sh, mi.Mesh) for sh in shapes):
+        raise ReneusError('reneus integrator: container_pose needs the container as triangle meshes '
+                          '(ply, obj); the scene has another kind of shape')
+    bbox = scene.bbox()
+    return Surroundings(eta, shapes, scene.environment(), light=render.light, pose=render.container_pose,
+                        pivot=0.5 * (bbox.min + bbox.max))
 
 
 def _same(a: tuple, b: tuple) -> bool:
@@ -415,11 +443,44 @@ class _Accumulator:
         return self.L
 
 
-def _ambient(scene: mi.Scene, d: mi.Vector3f) -> mi.Color3f:
-    """Radiance of the environment seen along ``d`` (C_out)."""
-    si = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
-    si.wi = -d
-    return scene.environment().eval(si)
+@dataclass
+class _Hit:
+    """Where rays meet the container: distance, point, geometric and shading normals (world)."""
+    t: mi.Float
+    p: mi.Point3f
+    n: mi.Vector3f
+    n_s: mi.Vector3f
+    valid: mi.Bool
+
+
+def _offset(p: mi.Point3f, n: mi.Vector3f, d: mi.Vector3f) -> mi.Point3f:
+    """The origin of a ray leaving ``p`` along ``d``: nudged off the surface to the side ``d``
+    goes, by Mitsuba's spawn_ray offset. Unlike spawn_ray it keeps the derivative of ``p``
+    (the glass's pose moves the next ray's origin)."""
+    q = dr.detach(p)
+    size = 1.0 + dr.maximum(dr.maximum(dr.abs(q.x), dr.abs(q.y)), dr.abs(q.z))
+    return mi.Point3f(p + dr.detach(dr.mulsign(mi.Vector3f(n), dr.dot(n, d)) * (size * mi.math.RayEpsilon)))
+
+
+def _shading_normal(shapes, si: mi.SurfaceInteraction3f, p: mi.Point3f) -> mi.Vector3f:
+    """The shading normal at ``p`` on the triangle ``si`` hit, from barycentrics of ``p``: unlike
+    ``si.sh_frame.n`` it follows ``p`` when the ray moves (the pose's derivative on curved glass)."""
+    n_s = mi.Vector3f(si.n)
+    for shape in shapes:
+        if not shape.has_vertex_normals():
+            continue
+        on = si.is_valid() & (si.shape == mi.ShapePtr(shape))
+        f = shape.face_indices(si.prim_index, on)
+        p0, p1, p2 = (shape.vertex_position(f[i], on) for i in range(3))
+        e1, e2, e = p1 - p0, p2 - p0, p - p0
+        d11, d12, d22 = dr.dot(e1, e1), dr.dot(e1, e2), dr.dot(e2, e2)
+        inv = dr.rcp(dr.maximum(d11 * d22 - d12 * d12, 1e-20))
+        b1 = (d22 * dr.dot(e, e1) - d12 * dr.dot(e, e2)) * inv
+        b2 = (d11 * dr.dot(e, e2) - d12 * dr.dot(e, e1)) * inv
+        n = ((1.0 - b1 - b2) * shape.vertex_normal(f[0], on) + b1 * shape.vertex_normal(f[1], on)
+             + b2 * shape.vertex_normal(f[2], on))
+        n_s = dr.select(on, dr.normalize(mi.Vector3f(n)), n_s)
+    return n_s
 
 
 # ------------------------------------------------------------ XML properties

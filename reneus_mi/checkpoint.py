@@ -1,8 +1,8 @@
 """Checkpoints: everything a killed run needs to continue as if never stopped.
 
 One ``.npz`` holds the field (as ``Field.save``: ``load_field`` reads a
-checkpoint too), Adam's moments and step counts under the field's parameter
-names, the loss scaler's scale (CUDA), and a JSON ``meta``: the iteration, the
+checkpoint too), Adam's moments and step counts under the integrator's parameter
+names, the refined IOR, pose and light, the loss scaler's scale (CUDA), and a JSON ``meta``: the iteration, the
 lowest loss seen, the field's frame and the container mesh. Random numbers
 depend only on (seed, step), so no generator state is needed. It is written
 to a temporary file and renamed, so a kill never leaves a torn checkpoint.
@@ -21,9 +21,12 @@ from reneus_mi.io import atomic_savez
 
 
 def save(path: str, field: Field, opt, names: dict[str, str], *, iteration: int, best_loss: float,
-         frame: FieldFrame, container: str | None, scaler=None) -> None:
-    """``names`` maps the optimiser's keys to the field's parameter names."""
+         frame: FieldFrame, container: str | None, scaler=None, surroundings: dict | None = None) -> None:
+    """``names`` maps the optimiser's keys to the integrator's parameter names; ``surroundings``
+    holds the IOR, pose and light arrays (:meth:`Surroundings.params`)."""
     arrays = field.arrays()
+    for name, value in (surroundings or {}).items():
+        arrays[f'surroundings/{name}'] = np.asarray(value, dtype=np.float32).ravel()
     for key, name in names.items():
         _, _, _, (t, m, v, _) = opt.state[key]
         arrays[f'adam/{name}/t'] = np.asarray(t, dtype=np.int64).ravel()
@@ -43,6 +46,12 @@ def load_meta(path: str) -> dict:
             return json.loads(str(f['meta']))
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as e:
         raise ReneusError(f'{path}: not a reneus-mi checkpoint ({e})') from None
+
+
+def load_surroundings(path: str) -> dict[str, np.ndarray]:
+    """The IOR, pose and light arrays saved in a checkpoint, by name."""
+    with np.load(path, allow_pickle=False) as f:
+        return {k[len('surroundings/'):]: f[k] for k in f.files if k.startswith('surroundings/')}
 
 
 def load_frame(path: str) -> tuple[FieldFrame, str | None]:

@@ -42,11 +42,15 @@ def add_arguments(parser: argparse.ArgumentParser, cls, *, default_note: str | N
         help_text = f'{docs.get(f.name, "")} (default: {default_note or f.default})'
         if kind is bool:
             group.add_argument(option, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+        elif typing.get_origin(kind) is tuple:
+            items = typing.get_args(kind)
+            group.add_argument(option, type=items[0], nargs=len(items), default=None,
+                               metavar=items[0].__name__.upper(), help=help_text)
         else:
             group.add_argument(option, type=kind, default=None, metavar=kind.__name__.upper(), help=help_text)
 
 
 def given_arguments(cls, args: argparse.Namespace) -> dict:
     """The fields of ``cls`` that the user gave on the command line."""
-    return {f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
-            if getattr(args, f.name, None) is not None}
+    return {f.name: tuple(v) if isinstance(v := getattr(args, f.name), list) else v
+            for f in dataclasses.fields(cls) if getattr(args, f.name, None) is not None}

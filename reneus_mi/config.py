@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
 from reneus_mi.fields import FIELD_CONFIGS, FieldConfig, NeuSFieldConfig
 from reneus_mi.ray_samplers import SamplerConfig
+from reneus_mi.surroundings import LIGHTS
 
 MODES = ('reneus', 'neus', 'neus_plus')
 TERMINALS = ('ambient', 'black')
@@ -51,10 +52,18 @@ class RenderConfig:
     cheaper estimate of the paper's deterministic tree (0: the paper's tree, every branch)."""
     aovs: bool = False
     """Append the AOV channels mask, sparsity, nx, ny, nz to rendered images."""
+    light: str = 'emitter'
+    """The light outside the container: 'emitter' (the scene's environment emitter as given),
+    'ambient' (one RGB radiance, a parameter: light.radiance) or 'sh' (spherical harmonics up to
+    order 2: light.sh); the last two start from the scene's emitter."""
+    container_pose: bool = False
+    """Give the container a pose and per-axis scale (container.translation, .rotation,
+    .log_scale), starting at the scene's placement."""
 
     def __post_init__(self):
         check_choice(self, 'mode', MODES)
         check_choice(self, 'terminal', TERMINALS)
+        check_choice(self, 'light', LIGHTS)
         check_numbers(self, at_least_zero=('max_depth', 'rr_threshold'), positive=('gamma',))
 
 
@@ -110,14 +119,46 @@ class TrainConfig:
     'crop' (drop what lies outside the container) or 'none'."""
     divergence_factor: float = 50.0
     """Stop when the loss exceeds this multiple of its lowest value so far (after warm-up)."""
+    refine_ior: bool = False
+    """Refine the container's IOR with the field (beyond the paper: it takes the IOR as known)."""
+    ior_learning_rate: float = 2e-3
+    """Peak learning rate of the IOR (it follows the field's schedule)."""
+    ior_range: tuple[float, float] = (1.05, 2.5)
+    """Bounds of the refined IOR."""
+    refine_pose: bool = False
+    """Refine the container's position, rotation and per-axis scale with the field; the refined
+    container is written as container_refined.ply."""
+    pose_learning_rate: float = 1e-3
+    """Peak learning rate of the pose (world units, radians, log-scale)."""
+    silhouette_weight: float = 0.01
+    """Weight of the container's silhouette against masks segmented from the photographs, per
+    pixel of distance, while the pose is refined (0: refraction alone moves it)."""
+    refine_light: str = 'none'
+    """Refine the light outside the container: 'none', 'ambient' (one RGB radiance) or 'sh'
+    (spherical harmonics up to order 2, for rooms that are not uniform)."""
+    light_learning_rate: float = 5e-3
+    """Peak learning rate of the light."""
+    refine_after: int = 100
+    """Steps of field-only training before the IOR, pose and light start to move (a formless
+    field gives them no signal to follow)."""
 
     def __post_init__(self):
         check_numbers(self, positive=('iterations', 'batch_rays', 'mesh_resolution', 'log_every',
-                                      'learning_rate', 'divergence_factor'),
+                                      'learning_rate', 'divergence_factor', 'ior_learning_rate',
+                                      'pose_learning_rate', 'light_learning_rate'),
                       at_least_zero=('warm_up', 'anneal_end', 'validate_every', 'checkpoint_every',
                                      'validation_view', 'trans_weight', 'eikonal_weight',
-                                     'learning_rate_alpha', 'max_minutes', 'seed'))
+                                     'learning_rate_alpha', 'max_minutes', 'seed', 'refine_after',
+                                     'silhouette_weight'))
         check_choice(self, 'postprocess', ('largest', 'crop', 'none'))
+        check_choice(self, 'refine_light', ('none',) + LIGHTS[1:])
+        lo, hi = self.ior_range
+        if not 1.0 < lo < hi:
+            raise ReneusError(f'ior_range={list(self.ior_range)}: expected 1 < low < high')
+
+    def refined(self) -> bool:
+        """Whether the run refines anything besides the field."""
+        return self.refine_ior or self.refine_pose or self.refine_light != 'none'
 
     def learning_rate_at(self, it: int) -> float:
         """NeuS's schedule: linear warm-up, then cosine decay to ``learning_rate_alpha``."""

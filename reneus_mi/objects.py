@@ -229,15 +229,65 @@ def load_object(name_or_path: str | os.PathLike) -> trimesh.Trimesh:
     return mesh
 
 
-def normalize(mesh: trimesh.Trimesh, margin: float = 0.15,
-              radius: float = 0.95) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
-    """Centre ``mesh``, fit an axis-aligned box around it and scale both into a sphere.
+#: Container shapes of the generator: a glass block, a block with rounded edges, a cylinder jar.
+CONTAINERS = ('box', 'rounded', 'cylinder')
+#: Edge radius of the rounded block and the jar's rims, as a fraction of the smallest half-extent.
+ROUNDING = 0.3
+#: Marching-cubes cells across the smooth containers' largest extent.
+CONTAINER_CELLS = 96
 
-    The box is the object's bounding box grown on every side by ``margin``
-    times the object's largest half-extent (so a flat object still sits in a
-    thick slab of glass); the box's corners then lie on the sphere of ``radius``
-    (< 1: everything inside the unit sphere). Returns ``(object, box)``, new
-    meshes; the box is watertight with outward normals.
+
+def _round_box(p, half, rounding):
+    q = dr.abs(p) - mi.Vector3f(*(float(h - rounding) for h in half))
+    outside = dr.norm(dr.maximum(q, 0.0))
+    return outside + dr.minimum(dr.maximum(dr.maximum(q.x, q.y), q.z), 0.0) - rounding
+
+
+def container_mesh(kind: str, half) -> trimesh.Trimesh:
+    """A closed container about the origin around the box of half-extents ``half``.
+
+    ``box`` is that box (flat faces); ``rounded`` the box with edges and corners
+    rounded; ``cylinder`` the vertical (z) jar through the box's corners, its rims
+    rounded. The smooth ones carry exact vertex normals (``vertex_normals``, from
+    their SDF), which the renderers use as shading normals.
+    """
+    half = np.asarray(half, np.float64)
+    if kind == 'box':
+        return trimesh.creation.box(extents=2.0 * half)
+    if kind not in CONTAINERS:
+        raise ReneusError(f"container={kind!r}: expected one of {', '.join(CONTAINERS)}")
+    r = ROUNDING * half.min()
+    if kind == 'rounded':
+        # Rounding cuts into the box: grow it so the object's corners stay inside.
+        outer = half + r * (1.0 - 1.0 / np.sqrt(3.0))
+        def distance(p): return _round_box(p, outer, float(r))
+    else:
+        outer = np.array([np.hypot(half[0], half[1])] * 2 + [half[2] + r])
+        def distance(p): return _round_cylinder(p, (0.0, 0.0, 0.0), float(outer[0]), float(outer[2]), float(r))
+    pitch = 2.0 * outer.max() / CONTAINER_CELLS
+    mesh = _mesh_sdf(distance, -outer - 2 * pitch, outer + 2 * pitch, pitch)
+    # Exact normals: the SDF's gradient (central differences) at the vertices.
+    v = np.asarray(mesh.vertices, np.float64)
+    h = 1e-3 * outer.max()
+
+    def at(points):
+        return np.asarray(distance(mi.Vector3f(*(mi.Float(np.ascontiguousarray(c, np.float32))
+                                                 for c in points.T))), np.float64)
+    grad = np.stack([at(v + h * e) - at(v - h * e) for e in np.eye(3)], axis=1) / (2 * h)
+    mesh.vertex_normals = grad / np.linalg.norm(grad, axis=1, keepdims=True)
+    return mesh
+
+
+def normalize(mesh: trimesh.Trimesh, margin: float = 0.15, radius: float = 0.95,
+              container: str = 'box') -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
+    """Centre ``mesh``, fit a container around it and scale both into a sphere.
+
+    The container (:func:`container_mesh`) is fitted to the object's bounding
+    box grown on every side by ``margin`` times the object's largest
+    half-extent (so a flat object still sits in a thick slab of glass); its
+    farthest point then lies on the sphere of ``radius`` (< 1: everything inside
+    the unit sphere). Returns ``(object, container)``, new meshes; the container
+    is watertight with outward normals.
     """
     if not 0.0 <= margin:
         raise ReneusError(f"margin={margin}: expected a non-negative fraction of the object's size")
@@ -245,10 +295,13 @@ def normalize(mesh: trimesh.Trimesh, margin: float = 0.15,
         raise ReneusError(f"radius={radius}: expected a value in (0, 1]")
     lo, hi = mesh.bounds
     center, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    box_half = half + margin * half.max()
-    scale = radius / np.linalg.norm(box_half)
+    box = container_mesh(container, half + margin * half.max())
+    scale = radius / np.linalg.norm(box.vertices, axis=1).max()
     obj = mesh.copy()
     obj.apply_translation(-center)
     obj.apply_scale(scale)
-    box = trimesh.creation.box(extents=2.0 * scale * box_half)
+    normals = box.vertex_normals.copy() if container != 'box' else None
+    box.apply_scale(scale)
+    if normals is not None:
+        box.vertex_normals = normals
     return obj, box

@@ -32,9 +32,11 @@ def opaque_seed(seed: int) -> mi.UInt64:
 class PixelSampler:
     """Masked pixels of all views, their colours and their camera rays, on the device."""
 
-    def __init__(self, dataset: Dataset, seed: int = 0):
+    def __init__(self, dataset: Dataset, seed: int = 0, margin: float = 0.0):
+        """``margin`` widens each view's mask by that fraction of the container's radius in it."""
         n, h, w = dataset.masks.shape
-        pixels = np.flatnonzero(dataset.masks.reshape(-1))
+        masks = dataset.masks if margin == 0.0 else widen(dataset.masks, margin)
+        pixels = np.flatnonzero(masks.reshape(-1))
         if len(pixels) == 0:
             raise ReneusError(f'{dataset.root}: no view sees the container (all masks are empty)')
         if n * h * w >= 2 ** 32:
@@ -77,3 +79,14 @@ class PixelSampler:
         d = mi.Vector3f(*[dr.dot(dr.gather(mi.Vector3f, self.rotation, 3 * view + i), d_cam)
                           for i in range(3)])
         return mi.Ray3f(dr.gather(mi.Point3f, self.origin, view), dr.normalize(d))
+
+
+def widen(masks: np.ndarray, margin: float) -> np.ndarray:
+    """Masks grown by ``margin`` times the radius of a disc of the same area, view by view."""
+    from scipy.ndimage import distance_transform_edt
+    out = masks.copy()
+    for v, mask in enumerate(masks):
+        radius = np.sqrt(mask.sum() / np.pi)
+        if radius > 0:
+            out[v] = distance_transform_edt(~mask) <= margin * radius
+    return out

@@ -103,7 +103,7 @@ def make_trainer(spec: RunSpec, out: str):
     if not hasattr(integrator, 'render_rays'):
         raise ReneusError(f'{spec.scene}: the integrator is {type(integrator).__name__}; '
                           'expected <integrator type="reneus">')
-    integrator.configure(spec.config.model)
+    integrator.configure(with_refinement(spec.config).model)
     guards.check_batch(spec.config.train.batch_rays, spec.config.model)
     dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus')
     if spec.data_fingerprint is None:
@@ -114,6 +114,23 @@ def make_trainer(spec: RunSpec, out: str):
     if spec.mesh_bounds is not None:
         frame = dataclasses.replace(frame, bounds=spec.mesh_bounds)
     return Trainer(scene, dataset, spec.config.train, out, frame=frame)
+
+
+def with_refinement(config: ReconstructionConfig) -> ReconstructionConfig:
+    """The configuration whose model has the parameters that its training refines: the
+    container's pose, and the light model that ``refine_light`` names."""
+    from reneus_mi.config import replace
+    train, render = config.train, config.model.render
+    changes = {}
+    if train.refine_pose:
+        changes['model.render.container_pose'] = True
+    if train.refine_light != 'none':
+        changes['model.render.light'] = train.refine_light
+    if changes and render.mode == 'neus':
+        raise ReneusError('refine_pose and refine_light need a container: mode is neus')
+    if train.refine_ior and render.mode == 'neus':
+        raise ReneusError('refine_ior needs a container: mode is neus')
+    return replace(config, **changes)
 
 
 def run(spec: RunSpec, out: str, *, resume: bool = False, progress: bool = True) -> dict:

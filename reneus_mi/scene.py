@@ -97,7 +97,7 @@ def _relative(path: str, xml_dir: str) -> str:
         return os.path.abspath(path)
 
 
-def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus',
+def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient: float = AMBIENT_RADIANCE,
               **integrator_settings) -> ET.ElementTree:
     """Build the scene of :func:`write_scene`; file paths relative to ``xml_dir``."""
     ds.validate()
@@ -137,7 +137,7 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus',
     ET.SubElement(film, 'rfilter', type='box')
 
     emitter = ET.SubElement(scene, 'emitter', type='constant')
-    ET.SubElement(emitter, 'rgb', name='radiance', value=_num(AMBIENT_RADIANCE))
+    ET.SubElement(emitter, 'rgb', name='radiance', value=_num(ambient))
 
     if ds.container is not None:
         shape = ET.SubElement(scene, 'shape', type=shape_type, id='container')
@@ -152,9 +152,9 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus',
     return tree
 
 
-def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus',
+def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: float = AMBIENT_RADIANCE,
                 **integrator_settings) -> None:
-    """Write the Mitsuba 3 scene XML of ``ds`` to ``path``.
+    """Write the Mitsuba 3 scene XML of ``ds`` to ``path``, lit by a constant ``ambient``.
 
     ``integrator_settings`` become properties of the integrator, typed by
     their Python type (bool, int, float, str). A dataset without a container
@@ -164,7 +164,7 @@ def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus',
     xml_dir = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(xml_dir):
         raise ReneusError(f"{path}: folder {xml_dir} does not exist")
-    tree = scene_xml(ds, xml_dir, integrator=integrator, **integrator_settings)
+    tree = scene_xml(ds, xml_dir, integrator=integrator, ambient=ambient, **integrator_settings)
     with atomic_open(path, 'wb') as f:
         tree.write(f, encoding='utf-8', xml_declaration=True)
 

@@ -13,7 +13,8 @@ Output of ``make_dataset(obj, DIR)``::
 
     DIR/gt.ply            object, with linear albedo as the vertex attribute
                           ``vertex_color`` (Mitsuba's name; trimesh reads the geometry)
-    DIR/box.ply           the glass box (unshared vertices: flat normals in any loader)
+    DIR/box.ply           the container: a box has unshared vertices (flat normals in any
+                          loader), the rounded block and the jar carry vertex normals
     DIR/box/, DIR/nobox/  Blender format, with scene.xml (reneus_mi.scene.write_scene)
     DIR/box_neus/, DIR/nobox_neus/   the same in NeuS format
     DIR/synth.json        settings, spp, max_depth and the measured noise
@@ -39,7 +40,7 @@ from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.data.container import container_masks
 from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.io import atomic_export, atomic_path, atomic_write_text
-from reneus_mi.objects import OBJECTS, load_object, normalize
+from reneus_mi.objects import CONTAINERS, OBJECTS, load_object, normalize
 from reneus_mi.scene import sensor_dict, write_scene
 
 #: Index of refraction of the glass box.
@@ -98,22 +99,25 @@ def _sensor(K: np.ndarray, c2w: np.ndarray, res: int) -> mi.Sensor:
     return mi.load_dict(desc)
 
 
-def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_DEPTH) -> dict:
-    """The Mitsuba scene: object (diffuse, vertex-colour albedo), glass box, environment."""
+def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_DEPTH, *,
+               ior: float = IOR, ambient: float = ENVIRONMENT) -> dict:
+    """The Mitsuba scene: object (diffuse, vertex-colour albedo), glass container, environment.
+
+    A container mesh with vertex normals (the smooth ones) is shaded with them."""
     scene = {
         'type': 'scene',
         # Russian roulette off: it would add noise to exactly the long paths
         # through the glass that the dataset is about.
         'integrator': {'type': 'path', 'max_depth': max_depth, 'rr_depth': max_depth},
         'environment': {'type': 'constant',
-                        'radiance': {'type': 'rgb', 'value': [ENVIRONMENT] * 3}},
+                        'radiance': {'type': 'rgb', 'value': [ambient] * 3}},
         'object': {'type': 'ply', 'filename': gt_mesh,
                    'bsdf': {'type': 'diffuse', 'reflectance': {
                        'type': 'mesh_attribute', 'name': 'vertex_color'}}},
     }
     if box_mesh is not None:
-        scene['box'] = {'type': 'ply', 'filename': box_mesh, 'face_normals': True,
-                        'bsdf': {'type': 'dielectric', 'int_ior': IOR, 'ext_ior': 1.0}}
+        scene['box'] = {'type': 'ply', 'filename': box_mesh,
+                        'bsdf': {'type': 'dielectric', 'int_ior': ior, 'ext_ior': 1.0}}
     return scene
 
 
@@ -154,11 +158,20 @@ def write_object(mesh: trimesh.Trimesh, path: str) -> None:
         shape.write_ply(tmp)
 
 
-def write_box(box: trimesh.Trimesh, path: str) -> None:
-    """Write the box with one vertex per face corner: no loader can smooth its normals."""
-    flat = box.copy()
-    flat.unmerge_vertices()
-    atomic_export(flat, path)
+def write_container(container: trimesh.Trimesh, kind: str, path: str) -> None:
+    """Write the container: a box with one vertex per face corner (no loader can smooth its
+    normals), a smooth container with its exact vertex normals."""
+    if kind == 'box':
+        flat = container.copy()
+        flat.unmerge_vertices()
+        atomic_export(flat, path)
+        return
+    normals = np.asarray(container.vertex_normals)
+    data = trimesh.exchange.ply.export_ply(container, vertex_normal=True)
+    with atomic_path(path) as tmp, open(tmp, 'wb') as f:
+        f.write(data)
+    if not np.allclose(trimesh.load(path, process=False).vertex_normals, normals, atol=1e-5):
+        raise ReneusError(f'{path}: the vertex normals did not survive writing')
 
 
 def _noise(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
@@ -169,12 +182,15 @@ def _noise(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
 
 def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int = DEFAULT_SPP,
                  seed: int = 0, max_depth: int = DEFAULT_MAX_DEPTH, subsets=SUBSETS,
-                 margin: float = 0.15, write: bool = True) -> dict:
+                 margin: float = 0.15, container: str = 'box', ior: float = IOR,
+                 ambient: float = ENVIRONMENT, write: bool = True) -> dict:
     """Render a synthetic dataset of ``obj`` into ``out_dir``.
 
     ``obj`` is a name of :data:`reneus_mi.objects.OBJECTS`, a mesh file or a
     :class:`trimesh.Trimesh` with vertex colours; it is centred and scaled with
-    its box by :func:`reneus_mi.objects.normalize` (``margin``). ``seed`` fixes
+    its container by :func:`reneus_mi.objects.normalize` (``margin``,
+    ``container``: ``box``, ``rounded`` or ``cylinder``). The glass has IOR
+    ``ior``, the environment radiance ``ambient``. ``seed`` fixes
     the cameras and the sample streams. ``gt.ply``, ``box.ply`` and
     ``synth.json`` are always written; with ``write`` each subset is written in
     the Blender and NeuS formats with a scene XML (see the module docstring).
@@ -193,6 +209,12 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
             raise ReneusError(f"{name}={value!r}: expected a positive integer")
     if not margin >= 0:
         raise ReneusError(f"margin={margin!r}: expected a number >= 0")
+    if container not in CONTAINERS:
+        raise ReneusError(f"container={container!r}: expected one of {', '.join(CONTAINERS)}")
+    if not 1.0 < ior <= 3.0:
+        raise ReneusError(f"ior={ior!r}: expected a number in (1, 3]")
+    if not ambient > 0:
+        raise ReneusError(f"ambient={ambient!r}: expected a positive radiance")
     start = time.perf_counter()
     K, c2w = sample_cameras(views, res, seed)
     # Every check comes before the first write: a refused run leaves the
@@ -203,12 +225,12 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     mesh = obj.copy() if isinstance(obj, trimesh.Trimesh) else load_object(obj)
     if mesh.visual.kind != 'vertex':
         raise ReneusError("object mesh: expected per-vertex colours (mesh.visual.vertex_colors)")
-    mesh, box = normalize(mesh, margin=margin)
+    mesh, box = normalize(mesh, margin=margin, container=container)
 
     os.makedirs(out_dir, exist_ok=True)
     gt_path, box_path = os.path.join(out_dir, 'gt.ply'), os.path.join(out_dir, 'box.ply')
     write_object(mesh, gt_path)
-    write_box(box, box_path)
+    write_container(box, container, box_path)
 
     masks = container_masks(box_path, K, c2w, res, res)
     # Seeds of renders are spaced by this stride so that no two renders (views,
@@ -217,7 +239,8 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     base = seed * (len(SUBSETS) + 1) * (views + 1) * stride
     images, noise = {}, None
     for s, subset in enumerate(subsets):
-        scene = mi.load_dict(scene_dict(gt_path, box_path if subset == 'box' else None, max_depth))
+        scene = mi.load_dict(scene_dict(gt_path, box_path if subset == 'box' else None, max_depth,
+                                        ior=ior, ambient=ambient))
         first = base + s * (views + 1) * stride
         linear = [render_view(scene, K[v], c2w[v], res, spp, first + v * stride)
                   for v in tqdm(range(views), desc=f'render {subset}', unit='view', disable=None)]
@@ -228,13 +251,13 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
 
     paths = {}
     if write:
-        paths = _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path)
+        paths = _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path, ior, ambient)
     result = {'images': images, 'masks': masks, 'K': K, 'c2w': c2w, 'gt_mesh': gt_path,
               'container': box_path, 'paths': paths, 'spp': spp, 'max_depth': max_depth,
               'noise': noise, 'seconds': time.perf_counter() - start}
     meta = {'object': 'trimesh' if isinstance(obj, trimesh.Trimesh) else os.fspath(obj),
             'views': views, 'res': res, 'spp': spp, 'max_depth': max_depth, 'seed': seed,
-            'margin': margin, 'ior': IOR, 'environment': ENVIRONMENT, 'gamma': GAMMA,
+            'margin': margin, 'container': container, 'ior': ior, 'environment': ambient, 'gamma': GAMMA,
             'camera_distance': CAMERA_DISTANCE, 'noise_std_display': noise,
             'subsets': list(subsets), 'seconds': result['seconds'],
             'paths': {sub: {fmt: os.path.relpath(folder, out_dir) for fmt, folder in p.items()}
@@ -251,7 +274,7 @@ def dataset_bytes(views: int, res: int, subsets: int) -> int:
     return pixels * (subsets * (3 * 4 * 3) + 1) + res * res * (3 * 8 + 3 * 4)
 
 
-def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path) -> dict:
+def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path, ior, ambient) -> dict:
     """Write every subset in both formats, plus its scene XML; return the folders."""
     paths = {}
     for subset, imgs in images.items():
@@ -260,7 +283,7 @@ def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path) -> dict:
         ds = Dataset(images=imgs, masks=masks, K=K, c2w=c2w,
                      names=[f'r_{i:03d}' for i in range(len(imgs))],
                      root=os.path.join(out_dir, subset),
-                     container=box_path if with_box else None, ior=IOR if with_box else None,
+                     container=box_path if with_box else None, ior=ior if with_box else None,
                      gt_mesh=gt_path, scale_mat=np.eye(4))
         paths[subset] = {'blender': os.path.join(out_dir, subset),
                          'neus': os.path.join(out_dir, f'{subset}_neus')}
@@ -270,7 +293,7 @@ def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path) -> dict:
         # the scene then refers to nothing outside it.
         folder = paths[subset]['blender']
         write_scene(load_dataset(folder, need_container=with_box),
-                    os.path.join(folder, 'scene.xml'))
+                    os.path.join(folder, 'scene.xml'), ambient=ambient)
     return paths
 
 
@@ -294,13 +317,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--margin', type=float, default=0.15,
                         help="glass around the object, as a fraction of the object's largest "
                              'half-extent (default 0.15)')
+    parser.add_argument('--container', choices=CONTAINERS, default='box',
+                        help='glass around the object: a block, a block with rounded edges or a '
+                             'cylinder jar (default box)')
+    parser.add_argument('--ior', type=float, default=IOR, help=f'IOR of the glass (default {IOR})')
+    parser.add_argument('--ambient', type=float, default=ENVIRONMENT,
+                        help=f'radiance of the uniform environment (default {ENVIRONMENT})')
     parser.add_argument('--subsets', nargs='+', choices=SUBSETS, default=list(SUBSETS),
                         help='subsets to render (default: both)')
     args = parser.parse_args(argv)
     with exit_on_error():
         result = make_dataset(args.object, args.out, views=args.views, res=args.res,
                               spp=args.spp, seed=args.seed, max_depth=args.max_depth,
-                              subsets=args.subsets, margin=args.margin)
+                              subsets=args.subsets, margin=args.margin, container=args.container,
+                              ior=args.ior, ambient=args.ambient)
     print(f"wrote {os.path.abspath(args.out)}: {args.views} views at {args.res}x{args.res}, "
           f"{result['spp']} spp, max_depth {result['max_depth']}, noise (per-pixel std inside "
           f"the box, display units) {result['noise']:.4f}, {result['seconds']:.0f} s")

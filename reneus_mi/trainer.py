@@ -45,6 +45,9 @@ from reneus_mi.variant import is_cuda
 
 #: Rays per kernel launch when rendering a whole view.
 RENDER_CHUNK = 1 << 14
+#: Mask margin while the container's pose is refined, as a fraction of the container's size in
+#: the image: covers the 2-5 % pose errors a calibration leaves.
+POSE_MARGIN = 0.1
 
 
 class TrainingError(ReneusError):
@@ -66,10 +69,25 @@ class StepStats:
     seconds: float
 
 
-def field_parameters(scene: mi.Scene) -> mi.SceneParameters:
-    """``mi.traverse(scene)`` kept to the integrator's field parameters (the field's own arrays)."""
+def refined_names(cfg: TrainConfig) -> list[str]:
+    """The integrator's parameters (besides the field's) that a run refines."""
+    names = ['container.eta'] if cfg.refine_ior else []
+    if cfg.refine_pose:
+        names += ['container.translation', 'container.rotation', 'container.log_scale']
+    if cfg.refine_light != 'none':
+        names.append('light.radiance' if cfg.refine_light == 'ambient' else 'light.sh')
+    return names
+
+
+def trainable_parameters(scene: mi.Scene, cfg: TrainConfig | None = None) -> mi.SceneParameters:
+    """``mi.traverse(scene)`` kept to what is fitted: the field's own arrays and the
+    surroundings that ``cfg`` refines."""
+    integrator = scene.integrator()
+    integrator.bind(scene)
     params = mi.traverse(scene)
-    own = [id(v) for v in scene.integrator().field.params().values()]
+    named = integrator.params()
+    own = [id(v) for v in integrator.field.params().values()]
+    own += [id(named[n]) for n in (refined_names(cfg) if cfg else [])]
     # The raw entries: reading through params[k] would mark every key for update.
     params.keep([k for k, (value, *_) in params.properties.items() if id(value) in own])
     return params
@@ -89,17 +107,39 @@ class Trainer:
         self.scene, self.integrator, self.ds, self.cfg, self.out = scene, integrator, dataset, cfg, out_dir
         self.container = dataset.container
         self.frame = frame or integrator.frame_of(scene)
-        self.pixels = PixelSampler(dataset, cfg.seed)
+        # A refined container may move out of the masks it was drawn with: a margin of
+        # pixels around them (outside the glass the photographs show the ambient, as renders do).
+        self.pixels = PixelSampler(dataset, cfg.seed, margin=POSE_MARGIN if cfg.refine_pose else 0.0)
+        self.silhouette = None
+        if cfg.refine_pose and cfg.silhouette_weight > 0:
+            if not dataset.masks_measured:
+                warnings.warn(f'{dataset.root}: the masks are projected from the container mesh, not '
+                              'segmented from the photographs: they cannot correct its pose, which '
+                              'then follows the refraction alone (weak for flat glass)')
+            else:
+                from reneus_mi.silhouette import SilhouetteLoss
+                s = self.surroundings
+                self.silhouette = SilhouetteLoss(dataset, s.mesh(), s.pose)
         self.iteration = 0
         self.best_loss = float('inf')
         self._setup_optimizer()
 
     def _setup_optimizer(self) -> None:
-        self.params = field_parameters(self.scene)
-        self.opt = mi.ad.Adam(lr=self.cfg.learning_rate, params=self.params)
+        cfg = self.cfg
+        self.params = trainable_parameters(self.scene, cfg)
+        self.opt = mi.ad.Adam(lr=cfg.learning_rate, params=self.params)
         # From here on the field computes with the optimiser's variables.
         self.params.update(self.opt)
-        self._lr_scale = {key: self.field.lr_scale().get(self._name(key), 1.0) for key in self.opt.keys()}
+        # Learning rates relative to the field's peak: the field's groups scale it, the
+        # surroundings have their own (they follow the same schedule).
+        own = {'container.eta': cfg.ior_learning_rate, 'light.radiance': cfg.light_learning_rate,
+               'light.sh': cfg.light_learning_rate}
+        own.update({n: cfg.pose_learning_rate for n in refined_names(cfg) if n.startswith('container.')
+                    and n != 'container.eta'})
+        self._lr_scale = {key: own[name] / cfg.learning_rate if name in own
+                          else self.field.lr_scale().get(name, 1.0)
+                          for key, name in ((k, self._name(k)) for k in self.opt.keys())}
+        self._refined = {self._name(k): k for k in self.opt.keys() if self._name(k) in own}
         # Half-precision networks (CUDA) need loss scaling; an array scale
         # keeps the scaler's first back-off from recompiling the kernels.
         self.scaler = GradScaler(init_scale=mi.Float(2.0 ** 16)) if is_cuda() else None
@@ -108,10 +148,23 @@ class Trainer:
     def field(self):
         return self.integrator.field
 
+    @property
+    def surroundings(self):
+        return self.integrator.bind(self.scene)
+
     def _name(self, key: str) -> str:
-        """The field's name of a ``mi.traverse`` key (``field.sdf.weights`` -> ``sdf.weights``)."""
-        names = {id(v): k for k, v in self.field.params().items()}
+        """The integrator's name of a ``mi.traverse`` key (``field.sdf.weights`` -> ``sdf.weights``)."""
+        names = {id(v): k for k, v in self.integrator.params().items()}
         return names[id(self.params.properties[key][0])]
+
+    def refined_values(self) -> dict:
+        """The refined IOR, pose and light as they stand (a host read: for logs and results)."""
+        if not self._refined:
+            return {}
+        values = self.surroundings.values()
+        keep = set(self._refined) | {'container.scale' if 'container.log_scale' in self._refined else '',
+                                     'light.mean' if 'light.sh' in self._refined else ''}
+        return {k: v for k, v in values.items() if k in keep}
 
     # ------------------------------------------------------------ checkpoints
     @property
@@ -122,7 +175,7 @@ class Trainer:
         names = {key: self._name(key) for key in self.opt.keys()}
         checkpoint.save(self.checkpoint_path, self.field, self.opt, names, iteration=self.iteration,
                         best_loss=self.best_loss, frame=self.frame, container=self.container,
-                        scaler=self.scaler)
+                        scaler=self.scaler, surroundings=self.surroundings.params())
 
     def resume(self) -> None:
         """Continue from the output folder's checkpoint, exactly where it was written."""
@@ -130,6 +183,7 @@ class Trainer:
         if not os.path.isfile(path):
             raise ReneusError(f'{path}: no checkpoint to resume from')
         self.integrator.configure(field=load_field(path))
+        self.surroundings.load(checkpoint.load_surroundings(path), path)
         self._setup_optimizer()
         names = {key: self._name(key) for key in self.opt.keys()}
         meta = checkpoint.restore(path, self.opt, names, self.scaler)
@@ -151,6 +205,8 @@ class Trainer:
         l_trans = losses.transmittance_sparsity(result.sparsity)
         l_eik = losses.eikonal(result.eikonal, result.n_samples)
         loss = l_color + cfg.trans_weight * l_trans + cfg.eikonal_weight * l_eik
+        if self.silhouette is not None:
+            loss += cfg.silhouette_weight * self.silhouette(it)
         mse = dr.mean(dr.square(dr.detach(result.color) - target), axis=None)
         samples = dr.sum(result.n_samples)
         # Scheduled, the loss terms are computed in the launch that evaluates
@@ -169,11 +225,15 @@ class Trainer:
                 raise TrainingError(f'step {it}: the gradient of {key!r} is not finite; stopped '
                                     f'before updating, the last checkpoint ({self.checkpoint_path}) is intact')
         lr = cfg.learning_rate_at(it)
-        self.opt.set_learning_rate({key: lr * s for key, s in self._lr_scale.items()})
+        held = set(self._refined.values()) if it < cfg.refine_after else set()
+        self.opt.set_learning_rate({key: 0.0 if key in held else lr * s for key, s in self._lr_scale.items()})
         if self.scaler:
             self.scaler.step(self.opt)
         else:
             self.opt.step()
+        if 'container.eta' in self._refined:
+            key = self._refined['container.eta']
+            self.opt[key] = dr.clip(self.opt[key], *cfg.ior_range)
         self.params.update(self.opt)
         self.iteration += 1
         self.best_loss = min(self.best_loss, value)
@@ -222,6 +282,13 @@ class Trainer:
         except NoSurfaceError as e:
             warnings.warn(f'step {self.iteration}: no mesh snapshot ({e}); training goes on')
 
+    def write_container(self, path: str) -> str:
+        """The container mesh at its refined pose, in world coordinates."""
+        mesh = self.surroundings.mesh()
+        mesh.apply_transform(self.surroundings.pose.matrix())
+        write_mesh(mesh, path)
+        return path
+
     def write_mesh(self, path: str, resolution: int | None = None):
         mesh = field_mesh(self.field, self.frame, resolution or self.cfg.mesh_resolution,
                           self.cfg.postprocess, self.container)
@@ -247,7 +314,8 @@ class Trainer:
                     stats = self.step()
                     psnrs = (psnrs + [stats.psnr])[-100:]
                     if self.iteration % cfg.log_every == 0:
-                        log.write(json.dumps({'iteration': self.iteration, **asdict(stats)}) + '\n')
+                        log.write(json.dumps({'iteration': self.iteration, **asdict(stats),
+                                              **self.refined_values()}) + '\n')
                         log.flush()
                     bar.update(1)
                     bar.set_postfix(loss=f'{stats.loss:.4f}', psnr=f'{stats.psnr:.2f}',
@@ -266,6 +334,10 @@ class Trainer:
         result = {'iterations': self.iteration, 'seconds': time.perf_counter() - start,
                   'psnr': float(np.mean(psnrs)) if psnrs else float('nan'), 'mesh': mesh_path,
                   'stopped_by_budget': self.iteration < cfg.iterations}
+        if self._refined:
+            result['refined'] = self.refined_values()
+        if cfg.refine_pose:
+            result['container'] = self.write_container(os.path.join(self.out, 'container_refined.ply'))
         try:
             self.write_mesh(mesh_path)
         except NoSurfaceError as e:

@@ -100,6 +100,17 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
                         eikonal=spread(mi.Float, r.eikonal, 0.0), n_samples=spread(mi.UInt32, r.n_samples, 0))
 
 
+def _stretch(t: mi.Float, t_near: mi.Float, t_far: mi.Float, ray: mi.UInt32) -> mi.Float:
+    """Sample positions as fixed fractions of their segment: the same values, but they follow
+    the segment's ends when these move (the glass's IOR and pose move where segments end)."""
+    near, far = dr.gather(mi.Float, t_near, ray), dr.gather(mi.Float, t_far, ray)
+    if not (dr.grad_enabled(near) or dr.grad_enabled(far)):
+        return t
+    length = dr.detach(far) - dr.detach(near)
+    u = dr.select(length > 0.0, (t - dr.detach(near)) / length, 0.0)
+    return dr.replace_grad(t, near + u * (far - near))
+
+
 def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio) -> VolumeResult:
     """:func:`volume_render` of segments that all need sampling."""
     n_rays = dr.width(o)
@@ -110,8 +121,8 @@ def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio) -> Vo
 
     t, n_t = sampler.sample(field, o, d, t_near, t_far, jitter)
     ray, i = segment_layout(n_rays, n)
-    lo = dr.gather(mi.Float, t, ray * n_t + i)
-    hi = dr.gather(mi.Float, t, ray * n_t + i + 1)
+    lo = _stretch(dr.gather(mi.Float, t, ray * n_t + i), t_near, t_far, ray)
+    hi = _stretch(dr.gather(mi.Float, t, ray * n_t + i + 1), t_near, t_far, ray)
     dist = hi - lo
     t_mid = 0.5 * (lo + hi)
     d_s = dr.gather(mi.Vector3f, d, ray)

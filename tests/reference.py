@@ -10,7 +10,10 @@ SPHERE_COLOR = (0.9, 0.35, 0.1)
 AMBIENT = 0.8
 
 
-def container(ior=1.45):
+def container(ior=1.45, mesh=None):
+    """The glass block (a cube, rotated and scaled), or the container in the PLY file ``mesh``."""
+    if mesh is not None:
+        return {'type': 'ply', 'filename': mesh, 'bsdf': {'type': 'dielectric', 'int_ior': ior}}
     return {'type': 'cube',
             'to_world': mi.ScalarTransform4f().rotate([0, 1, 0], 25).scale([0.55, 0.45, 0.5]),
             'bsdf': {'type': 'dielectric', 'int_ior': ior}}
@@ -22,17 +25,17 @@ def sensor(res):
             'film': {'type': 'hdrfilm', 'width': res, 'height': res, 'rfilter': {'type': 'box'}}}
 
 
-def reneus_scene(res=24, ior=1.45, **integrator):
+def reneus_scene(res=24, ior=1.45, mesh=None, **integrator):
     settings = {'type': 'reneus', 'gamma': 1.0, **integrator}
     if settings.setdefault('field', 'sphere') == 'sphere':
         settings = {'field_radius': SPHERE_RADIUS, 'field_color': SPHERE_COLOR,
                     'field_inv_s': 4000.0, **settings}
     return mi.load_dict({'type': 'scene', 'integrator': settings, 'sensor': sensor(res),
                          'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': AMBIENT}},
-                         'container': container(ior)})
+                         'container': container(ior, mesh)})
 
 
-def path_scene(res=24, ior=1.45, max_depth=3):
+def path_scene(res=24, ior=1.45, max_depth=3, mesh=None):
     """The same scene for ``path``: the sphere is an emitter behind a black BSDF.
 
     Its radiance is c·η²: inside glass a path tracer scales radiance by η² at
@@ -43,7 +46,7 @@ def path_scene(res=24, ior=1.45, max_depth=3):
     return mi.load_dict({'type': 'scene', 'integrator': {'type': 'path', 'max_depth': max_depth},
                          'sensor': sensor(res),
                          'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': AMBIENT}},
-                         'container': container(ior),
+                         'container': container(ior, mesh),
                          'sphere': {'type': 'sphere', 'radius': SPHERE_RADIUS,
                                     'bsdf': {'type': 'diffuse', 'reflectance': {'type': 'rgb', 'value': 0.0}},
                                     'emitter': {'type': 'area', 'radiance': {'type': 'rgb', 'value': c}}}})

@@ -46,8 +46,8 @@ def test_matches_path_tracer(reference):
     assert mean_err < MEAN_TOL and p99 < P99_TOL, (mean_err, p99)
 
 
-def _no_reflection(self, rays, si, hit, T, eta, reflect, depth=0):
-    return ORIGINAL_INTERFACE(self, rays, si, hit, T, eta, False, depth)
+def _no_reflection(self, rays, hit, T, eta, reflect, depth=0):
+    return ORIGINAL_INTERFACE(self, rays, hit, T, eta, False, depth)
 
 
 def _half_fresnel(d, n, eta):

@@ -52,6 +52,9 @@ class Dataset:
     gt_mesh: str | None = None
     #: NeuS normalisation (unit sphere -> world), if the data has one.
     scale_mat: np.ndarray | None = None
+    #: Whether the masks were read from files (segmented photographs) rather than projected
+    #: from the container mesh: only such masks say where the container really is.
+    masks_measured: bool = False
 
     def __len__(self) -> int:
         return len(self.images)
@@ -207,6 +210,7 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
             masks[i] = m
     ds = Dataset(images=np.stack(images).astype(np.float32), masks=np.stack(masks),
                  K=np.asarray(K, np.float64), c2w=np.asarray(c2w, np.float64), names=list(names),
-                 root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat)
+                 root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat,
+                 masks_measured=not missing)
     ds.validate()
     return ds

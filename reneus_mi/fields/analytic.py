@@ -104,7 +104,11 @@ class AnalyticField(Field):
             g = self._distance(p)
             dr.backward(g)
             grad = dr.grad(p)
-        return dr.detach(g), grad, []
+        # Value and gradient stay attached to x, so that renders differentiate in whatever
+        # moves the samples (the container's IOR and pose): the gradient's derivative (the
+        # Hessian, which NeuS's opacity depends on through cos) from tetrahedral differences.
+        value, grad_fd, _ = super().gradient(x)
+        return value, dr.replace_grad(grad, grad_fd), []
 
     def radiance(self, x, v, n, feature):
         return mi.Color3f(*self.cfg.color) + 0.0 * x.x

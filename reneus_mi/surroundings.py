@@ -1,0 +1,226 @@
+"""What surrounds the field, and what the paper takes as known: the container's IOR
+and pose, and the light (beyond the paper: Sec. 5 names them as its limitation).
+
+The ``reneus`` integrator owns one :class:`Surroundings` per scene, built from
+the scene when it first renders it: the IOR from the container's ``dielectric``
+BSDF, the pose at identity (the container as the scene places it), the light
+from the scene's environment emitter. Their values are Dr.Jit arrays that
+``mi.traverse(scene)`` shows under the names of :meth:`Surroundings.params`
+(``container.eta``, ``container.translation``, ``light.sh``, ...); the trainer
+refines those a run asks for, like the field's own parameters.
+
+Container pose: a world point x of the container as loaded goes to
+
+    x' = R(r) diag(exp(σ)) (x - c) + c + τ
+
+with ``τ`` the translation, ``r`` a rotation vector (axis x angle), ``σ`` the
+per-axis log-scale and ``c`` the centre of the container's bounding box. Rays
+are taken into the container's frame, intersected with the mesh as loaded and
+their hit distance, point and normals mapped back differentiably: the
+derivatives are the interior ones (how refraction moves with the glass).
+
+Light: ``ambient`` is one RGB radiance for every direction (the paper's C_out);
+``sh`` a real spherical-harmonics expansion up to order 2 (9 RGB
+coefficients), for rooms that are not uniform.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from reneus_mi.errors import ReneusError
+
+#: Light models: the scene's emitter as given, one refinable RGB radiance, order-2 SH.
+LIGHTS = ('emitter', 'ambient', 'sh')
+#: Real SH of order <= 2: (normalisation, monomial) in the order of the coefficients.
+SH_TERMS = 9
+#: Directions that project an emitter onto the SH basis (Fibonacci sphere).
+_PROJECTION_DIRECTIONS = 4096
+
+
+def sh_basis(d: mi.Vector3f) -> list:
+    """The 9 real spherical harmonics Y_lm (l <= 2) of unit directions ``d``."""
+    x, y, z = d.x, d.y, d.z
+    return [0.282095 + 0.0 * x,
+            0.488603 * y, 0.488603 * z, 0.488603 * x,
+            1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3.0 * z * z - 1.0),
+            1.092548 * x * z, 0.546274 * (x * x - y * y)]
+
+
+def fibonacci_directions(n: int) -> np.ndarray:
+    """``n`` nearly uniform unit vectors (n,3): equal-weight quadrature on the sphere."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * i
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def emitter_radiance(emitter: mi.Emitter, d: mi.Vector3f) -> mi.Color3f:
+    """Radiance of an environment emitter seen along ``d``."""
+    si = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
+    si.wi = -d
+    return emitter.eval(si)
+
+
+class Light:
+    """The light around the container: ``ambient`` (one RGB) or ``sh`` (9 RGB coefficients)."""
+
+    def __init__(self, kind: str, emitter: mi.Emitter):
+        if kind not in LIGHTS[1:]:
+            raise ReneusError(f"light={kind!r}: expected one of {', '.join(LIGHTS)}")
+        self.kind = kind
+        # Initialised by projecting the scene's emitter (exact for a constant one).
+        dirs = fibonacci_directions(_PROJECTION_DIRECTIONS)
+        d = mi.Vector3f(*(mi.Float(dirs[:, i].astype(np.float32)) for i in range(3)))
+        L = np.broadcast_to(np.array(emitter_radiance(emitter, d), np.float64).reshape(3, -1), (3, len(dirs)))
+        if kind == 'ambient':
+            values = L.mean(axis=1)
+        else:
+            Y = np.array([np.broadcast_to(np.array(y, np.float64), (len(dirs),)) for y in sh_basis(d)])
+            values = (4.0 * np.pi / len(dirs)) * (Y @ L.T)    # (9, 3)
+        self.coefficients = mi.Float(values.astype(np.float32).ravel())
+
+    @property
+    def name(self) -> str:
+        return 'light.radiance' if self.kind == 'ambient' else 'light.sh'
+
+    def eval(self, d: mi.Vector3f) -> mi.Color3f:
+        c = self.coefficients
+        if self.kind == 'ambient':
+            return mi.Color3f(*(dr.gather(mi.Float, c, i) for i in range(3)))
+        L = dr.zeros(mi.Color3f, dr.width(d))
+        for k, y in enumerate(sh_basis(d)):
+            L += y * mi.Color3f(*(dr.gather(mi.Float, c, 3 * k + i) for i in range(3)))
+        # Negative radiance is not light: an SH fit can ring below zero.
+        return dr.maximum(L, 0.0)
+
+    def mean(self) -> np.ndarray:
+        """Mean radiance over the sphere (RGB): what a uniform room of the same power shows."""
+        c = np.array(self.coefficients, np.float64).reshape(-1, 3)
+        return c[0] if self.kind == 'ambient' else c[0] * 0.282095
+
+
+def _cross_matrix(v) -> mi.Matrix3f:
+    return mi.Matrix3f(0.0, -v.z, v.y,
+                       v.z, 0.0, -v.x,
+                       -v.y, v.x, 0.0)
+
+
+class ContainerPose:
+    """A rigid transform and per-axis scale of the container about ``pivot``."""
+
+    def __init__(self, pivot):
+        self.pivot = mi.ScalarPoint3f(*map(float, pivot))
+        self.translation = dr.zeros(mi.Float, 3)
+        self.rotation = dr.zeros(mi.Float, 3)
+        self.log_scale = dr.zeros(mi.Float, 3)
+
+    def params(self) -> dict:
+        return {'container.translation': self.translation, 'container.rotation': self.rotation,
+                'container.log_scale': self.log_scale}
+
+    @staticmethod
+    def _vector(array) -> mi.Vector3f:
+        return mi.Vector3f(*(dr.gather(mi.Float, array, i) for i in range(3)))
+
+    def _linear(self):
+        """(R, s): the rotation matrix (Rodrigues) and the per-axis scale, differentiable at 0."""
+        r = self._vector(self.rotation)
+        θ2 = dr.squared_norm(r)
+        θ = dr.sqrt(dr.maximum(θ2, 1e-12))
+        small = θ2 < 1e-6
+        a = dr.select(small, 1.0 - θ2 / 6.0, dr.sin(θ) / θ)
+        b = dr.select(small, 0.5 - θ2 / 24.0, (1.0 - dr.cos(θ)) / dr.maximum(θ2, 1e-12))
+        K = _cross_matrix(r)
+        R = dr.identity(mi.Matrix3f) + a * K + b * (K @ K)
+        return R, dr.exp(self._vector(self.log_scale))
+
+    def to_container(self, o: mi.Point3f, d: mi.Vector3f):
+        """World rays in the frame of the container as loaded: (origin, unnormalised direction)."""
+        R, s = self._linear()
+        c = mi.Point3f(self.pivot)
+        Rt = R.T
+        o_c = (Rt @ mi.Vector3f(o - c - self._vector(self.translation))) / s + c
+        return mi.Point3f(o_c), mi.Vector3f((Rt @ d) / s)
+
+    def to_world(self, x: mi.Point3f) -> mi.Point3f:
+        """A point of the container as loaded, where the pose puts it."""
+        R, s = self._linear()
+        c = mi.Point3f(self.pivot)
+        return mi.Point3f(R @ (s * mi.Vector3f(x - c)) + c + self._vector(self.translation))
+
+    def normal_to_world(self, n: mi.Vector3f) -> mi.Vector3f:
+        """A normal of the container as loaded, in the world (inverse transpose of R diag(s))."""
+        R, s = self._linear()
+        return dr.normalize(R @ (n / s))
+
+    def matrix(self) -> np.ndarray:
+        """The 4x4 world transform of the container (NumPy, for writing the refined mesh)."""
+        with dr.suspend_grad():
+            R, s = self._linear()
+            t = np.array(self._vector(self.translation), np.float64).ravel()
+            Rm = np.array(R, np.float64).reshape(3, 3)
+            sm = np.array(s, np.float64).ravel()
+        c = np.array(self.pivot, np.float64)
+        M = np.eye(4)
+        M[:3, :3] = Rm * sm[None, :]
+        M[:3, 3] = c + t - M[:3, :3] @ c
+        return M
+
+
+class Surroundings:
+    """The container's IOR and pose and the light of one scene, owned by the integrator."""
+
+    def __init__(self, eta: float, shapes: list, emitter: mi.Emitter, *, light: str = 'emitter',
+                 pose: bool = False, pivot=(0.0, 0.0, 0.0)):
+        self.eta = mi.Float(eta)
+        self.shapes = shapes
+        self.emitter = emitter
+        self.light = None if light == 'emitter' else Light(light, emitter)
+        self.pose = ContainerPose(pivot) if pose else None
+
+    def mesh(self):
+        """The container as the scene loaded it (world coordinates), as one trimesh."""
+        import trimesh
+        parts = []
+        for shape in self.shapes:
+            params = mi.traverse(shape)
+            parts.append(trimesh.Trimesh(np.array(params['vertex_positions']).reshape(-1, 3),
+                                         np.array(params['faces']).reshape(-1, 3), process=False))
+        return trimesh.util.concatenate(parts)
+
+    def params(self) -> dict:
+        """The refinable arrays, by their ``mi.traverse`` names (under the integrator)."""
+        out = {'container.eta': self.eta}
+        if self.pose is not None:
+            out.update(self.pose.params())
+        if self.light is not None:
+            out[self.light.name] = self.light.coefficients
+        return out
+
+    def ambient(self, d: mi.Vector3f) -> mi.Color3f:
+        """Radiance arriving from direction ``d`` outside the container (C_out)."""
+        return emitter_radiance(self.emitter, d) if self.light is None else self.light.eval(d)
+
+    def values(self) -> dict:
+        """The current values, as plain numbers: for logs and a run's result file."""
+        out = {name: np.array(value, np.float64).round(6).tolist() for name, value in self.params().items()}
+        out['container.eta'] = out['container.eta'][0]
+        if self.pose is not None:
+            M = self.pose.matrix()
+            out['container.scale'] = np.linalg.norm(M[:3, :3], axis=0).round(6).tolist()
+        if self.light is not None:
+            out['light.mean'] = self.light.mean().round(6).tolist()
+        return out
+
+    def load(self, values: dict[str, np.ndarray], where: str) -> None:
+        """Set the arrays from saved values (a checkpoint), each checked for its size."""
+        for name, array in self.params().items():
+            if name not in values:
+                continue
+            value = np.asarray(values[name], np.float32).ravel()
+            if value.size != dr.width(array):
+                raise ReneusError(f'{where}: {name} holds {value.size} values; expected {dr.width(array)}')
+            mi.set_property(array, mi.Float(value))
