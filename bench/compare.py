@@ -334,9 +334,10 @@ def compare(objects, cfg: dict, out: str, doc_dir: str, *, progress: bool = Fals
     md = table(results, list(objects), cfg, elapsed=time.perf_counter() - start)
     if note:
         md = md.replace('## Who wins', note + '\n\n## Who wins', 1)
-    from reneus_mi.io import atomic_write_text
+    from reneus_mi.io import write_section
     write_figure(results, list(objects), os.path.join(doc_dir, 'comparison.png'), out)
-    atomic_write_text(os.path.join(doc_dir, 'comparison.md'), md)
+    # bench/refine.py writes its own section of the same document.
+    write_section(os.path.join(doc_dir, 'comparison.md'), 'compare', md)
     return results
 
 

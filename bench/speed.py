@@ -2,6 +2,7 @@
 
     python bench/speed.py [--presets fast cpu paper] [--minutes 10] [--points 0.5 1 2 5 10]
                           [--views 48] [--res 128] [--object insect] [--out runs/speed] [--doc docs]
+                          [--set train.sample_budget=49152 ...]
 
 On one synthetic scene of the generator (``reneus_mi.synth``: the object in
 its glass block, Mitsuba's path tracer, rendered once into ``OUT/data``) each
@@ -69,7 +70,7 @@ def child(args) -> None:
     write_scene(load_dataset(data), xml, preset=args.one)
     spec = spec_of_scene(xml, None)
     spec.config = replace(spec.config, **{'train.iterations': 10 ** 7, 'train.validate_every': 0,
-                                          'train.checkpoint_every': 0})
+                                          'train.checkpoint_every': 0}, **settings(args.set))
     run_dir = os.path.join(args.out, args.one)
     trainer = runs.make_trainer(spec, run_dir)
     gt = load_mesh(load_dataset(data).gt_mesh)
@@ -77,12 +78,13 @@ def child(args) -> None:
     curve, steps = [], []
     start = time.perf_counter()
     first = trainer.step().seconds
-    clock, evaluated, samples = 0.0, 0, 0.0
+    clock, evaluated, samples, rays = 0.0, 0, 0.0, 0
     while clock < 60.0 * args.minutes:
         stats = trainer.step()
         clock += stats.seconds
         steps.append(stats.seconds)
         samples += stats.samples
+        rays += stats.rays
         while evaluated < len(points) and clock >= 60.0 * points[evaluated]:
             try:
                 mesh = postprocess(trainer.write_mesh(os.path.join(run_dir, f'mesh_{points[evaluated]}min.ply'),
@@ -96,13 +98,28 @@ def child(args) -> None:
             evaluated += 1
     dr.sync_thread()
     steady = float(np.median(steps))
-    batch = spec.config.train.batch_rays
     print(json.dumps({
-        'preset': args.one, 'batch': batch, 'step_s': steady, 'rays_per_s': batch / steady,
+        'preset': args.one, 'batch': rays / len(steps), 'step_s': steady, 'rays_per_s': rays / len(steps) / steady,
         'samples_per_s': samples / sum(steps), 'compile_s': max(first - steady, 0.0),
         'iterations': trainer.iteration, 'wall_s': time.perf_counter() - start,
         'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         'curve': curve, 'integrator': trainer.integrator.to_string()}))
+
+
+def settings(pairs: list[str]) -> dict:
+    """``--set section.name=value`` pairs as typed configuration changes."""
+    from reneus_mi.config import ReconstructionConfig, typed_value
+    import typing
+    out = {}
+    for pair in pairs:
+        key, _, text = pair.partition('=')
+        section, _, name = key.partition('.')
+        cls = typing.get_type_hints(ReconstructionConfig)[section] if section in ('train',) else None
+        if cls is None or name not in typing.get_type_hints(cls):
+            raise SystemExit(f'--set {pair}: expected train.<setting>=<value>')
+        kind = typing.get_type_hints(cls)[name]
+        out[key] = typed_value(json.loads(text) if kind is not str else text, kind, f'--set {key}')
+    return out
 
 
 def write_doc(results: list[dict], args, command: str, dev: str, load: float) -> None:
@@ -163,6 +180,8 @@ def main(argv=None) -> int:
     p.add_argument('--mesh-resolution', type=int, default=128)
     p.add_argument('--out', default=os.path.join('runs', 'speed'))
     p.add_argument('--doc', default=os.path.join(ROOT, 'docs'))
+    p.add_argument('--set', nargs='*', default=[], metavar='train.NAME=VALUE',
+                   help='training settings for every preset (e.g. train.sample_budget=49152)')
     p.add_argument('--one', help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     args.out = os.path.abspath(args.out)

@@ -21,7 +21,8 @@ from reneus_mi.io import atomic_savez
 
 
 def save(path: str, field: Field, opt, names: dict[str, str], *, iteration: int, best_loss: float,
-         frame: FieldFrame, container: str | None, scaler=None, surroundings: dict | None = None) -> None:
+         frame: FieldFrame, container: str | None, scaler=None, surroundings: dict | None = None,
+         batch: int | None = None) -> None:
     """``names`` maps the optimiser's keys to the integrator's parameter names; ``surroundings``
     holds the IOR, pose and light arrays (:meth:`Surroundings.params`)."""
     arrays = field.arrays()
@@ -36,7 +37,7 @@ def save(path: str, field: Field, opt, names: dict[str, str], *, iteration: int,
         arrays['scaler/scale'] = np.asarray(scaler.scale_factor, dtype=np.float32).ravel()
         arrays['scaler/it'] = np.array([scaler.it], dtype=np.int64)
     meta = {'iteration': iteration, 'best_loss': best_loss, 'frame': frame.to_dict(),
-            'container': container}
+            'container': container, 'batch': batch}
     atomic_savez(path, meta=np.array(json.dumps(meta)), **arrays)
 
 

@@ -89,7 +89,12 @@ class TrainConfig:
     """Wall-clock budget of the training steps in minutes; the run then writes its mesh and
     stops (0: no budget, train for all iterations)."""
     batch_rays: int = 1024
-    """Camera rays per step, drawn at random from the container masks of all views."""
+    """Camera rays per step, drawn at random from the container masks of all views (with a
+    sample budget: the first step's)."""
+    sample_budget: int = 0
+    """Field samples per step: the batch then grows or shrinks each step (by 256 rays, up to 8x
+    either way) to render about this many, so that rays the occupancy grid makes cheap fill the
+    device (0: a fixed batch)."""
     learning_rate: float = 5e-4
     """Peak learning rate of Adam (NeuS); the field scales it per parameter group."""
     learning_rate_alpha: float = 0.05
@@ -146,7 +151,7 @@ class TrainConfig:
         check_numbers(self, positive=('iterations', 'batch_rays', 'mesh_resolution', 'log_every',
                                       'learning_rate', 'divergence_factor', 'ior_learning_rate',
                                       'pose_learning_rate', 'light_learning_rate'),
-                      at_least_zero=('warm_up', 'anneal_end', 'validate_every', 'checkpoint_every',
+                      at_least_zero=('sample_budget', 'warm_up', 'anneal_end', 'validate_every', 'checkpoint_every',
                                      'validation_view', 'trans_weight', 'eikonal_weight',
                                      'learning_rate_alpha', 'max_minutes', 'seed', 'refine_after',
                                      'silhouette_weight'))

@@ -48,6 +48,22 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
         f.write(text)
 
 
+def write_section(path: str | os.PathLike, name: str, text: str) -> None:
+    """Put ``text`` in the file's section ``name`` (between ``<!-- name -->`` and
+    ``<!-- /name -->``), keeping the rest: several benchmarks can share one document."""
+    start, end = f'<!-- {name} -->', f'<!-- /{name} -->'
+    old = ''
+    if os.path.isfile(path):
+        with open(path) as f:
+            old = f.read()
+    block = f'{start}\n{text.rstrip()}\n{end}'
+    if start in old and end in old:
+        new = old[:old.index(start)] + block + old[old.index(end) + len(end):]
+    else:
+        new = (old.rstrip() + '\n\n' if old.strip() else '') + block + '\n'
+    atomic_write_text(path, new)
+
+
 def atomic_export(mesh, path: str | os.PathLike) -> None:
     """Write a trimesh mesh (the format follows ``path``'s extension)."""
     with atomic_path(path) as tmp:

@@ -104,7 +104,10 @@ def make_trainer(spec: RunSpec, out: str):
         raise ReneusError(f'{spec.scene}: the integrator is {type(integrator).__name__}; '
                           'expected <integrator type="reneus">')
     integrator.configure(with_refinement(spec.config).model)
-    guards.check_batch(spec.config.train.batch_rays, spec.config.model)
+    train = spec.config.train
+    from reneus_mi.trainer import BUDGET_RANGE
+    guards.check_batch(train.batch_rays * (BUDGET_RANGE if train.sample_budget else 1), spec.config.model,
+                       '--batch-rays' + (' (x8: the largest batch under --sample-budget)' if train.sample_budget else ''))
     dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus')
     if spec.data_fingerprint is None:
         spec.data_fingerprint = guards.dataset_fingerprint(dataset)

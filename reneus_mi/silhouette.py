@@ -31,7 +31,7 @@ from reneus_mi.surroundings import ContainerPose
 #: Points sampled along the container's edges (spread evenly over its edges).
 EDGE_POINTS = 8192
 #: Views whose silhouettes enter the loss at each step.
-VIEWS_PER_STEP = 8
+VIEWS_PER_STEP = 16
 
 
 class SilhouetteLoss:

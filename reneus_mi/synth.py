@@ -158,10 +158,10 @@ def write_object(mesh: trimesh.Trimesh, path: str) -> None:
         shape.write_ply(tmp)
 
 
-def write_container(container: trimesh.Trimesh, kind: str, path: str) -> None:
-    """Write the container: a box with one vertex per face corner (no loader can smooth its
-    normals), a smooth container with its exact vertex normals."""
-    if kind == 'box':
+def write_container(container: trimesh.Trimesh, path: str, smooth: bool) -> None:
+    """Write the container: a flat one (a box) with one vertex per face corner (no loader can
+    smooth its normals), a ``smooth`` one with its vertex normals."""
+    if not smooth:
         flat = container.copy()
         flat.unmerge_vertices()
         atomic_export(flat, path)
@@ -230,7 +230,7 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     os.makedirs(out_dir, exist_ok=True)
     gt_path, box_path = os.path.join(out_dir, 'gt.ply'), os.path.join(out_dir, 'box.ply')
     write_object(mesh, gt_path)
-    write_container(box, container, box_path)
+    write_container(box, box_path, smooth=container != 'box')
 
     masks = container_masks(box_path, K, c2w, res, res)
     # Seeds of renders are spaced by this stride so that no two renders (views,
@@ -264,6 +264,35 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
                       for sub, p in paths.items()}}
     atomic_write_text(os.path.join(out_dir, 'synth.json'), json.dumps(meta, indent=2))
     return result
+
+
+def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=None,
+                  scale: float | None = None) -> Dataset:
+    """``ds`` as a calibration would leave it: the container's IOR taken as ``ior``, or the
+    container shifted by ``offset`` (a fraction of its largest extent, per axis) and scaled
+    by ``scale`` about its centre (written to ``folder/container_miscalibrated.ply``). The
+    photographs and masks stay the truth; refinement should find its way back to it."""
+    import dataclasses
+    out = dataclasses.replace(ds)
+    if ior is not None:
+        out.ior = ior
+    if offset is not None or scale is not None:
+        mesh = trimesh.load(ds.container, process=False)
+        fields = mesh.metadata.get('_ply_raw', {}).get('vertex', {}).get('data')
+        smooth = fields is not None and 'nx' in (fields.dtype.names or ())
+        normals = np.asarray(mesh.vertex_normals) if smooth else None
+        s = 1.0 if scale is None else scale
+        centre = mesh.bounds.mean(axis=0)
+        M = np.eye(4)
+        M[:3, :3] *= s
+        M[:3, 3] = (1.0 - s) * centre + np.asarray(offset if offset is not None else (0, 0, 0)) * mesh.extents.max()
+        mesh.apply_transform(M)
+        out.container = os.path.join(folder, 'container_miscalibrated.ply')
+        if smooth:
+            # A uniform scale and a shift leave the normals as they were.
+            mesh.vertex_normals = normals
+        write_container(mesh, out.container, smooth)
+    return out
 
 
 def dataset_bytes(views: int, res: int, subsets: int) -> int:

@@ -50,6 +50,19 @@ RENDER_CHUNK = 1 << 14
 POSE_MARGIN = 0.1
 
 
+#: Batches under a sample budget are multiples of this many rays, between the configured
+#: batch / BUDGET_RANGE and batch x BUDGET_RANGE.
+BATCH_QUANTUM, BUDGET_RANGE = 256, 8
+
+
+def next_batch(cfg: TrainConfig, samples_per_ray: float) -> int:
+    """The batch that renders about ``cfg.sample_budget`` samples at ``samples_per_ray``."""
+    want = cfg.sample_budget / max(samples_per_ray, 1.0)
+    lo = max(BATCH_QUANTUM, cfg.batch_rays // BUDGET_RANGE)
+    n = int(round(want / BATCH_QUANTUM)) * BATCH_QUANTUM
+    return int(min(max(n, lo), cfg.batch_rays * BUDGET_RANGE))
+
+
 class TrainingError(ReneusError):
     """The run cannot go on (NaN or diverging loss); the last checkpoint is intact."""
 
@@ -63,6 +76,8 @@ class StepStats:
     psnr: float
     learning_rate: float
     inv_s: float
+    rays: int
+    """Camera rays of the step's batch."""
     rays_per_s: float
     samples: float
     """Field samples (sections) volume rendered in the step."""
@@ -122,6 +137,7 @@ class Trainer:
                 self.silhouette = SilhouetteLoss(dataset, s.mesh(), s.pose)
         self.iteration = 0
         self.best_loss = float('inf')
+        self.batch = cfg.batch_rays
         self._setup_optimizer()
 
     def _setup_optimizer(self) -> None:
@@ -175,7 +191,7 @@ class Trainer:
         names = {key: self._name(key) for key in self.opt.keys()}
         checkpoint.save(self.checkpoint_path, self.field, self.opt, names, iteration=self.iteration,
                         best_loss=self.best_loss, frame=self.frame, container=self.container,
-                        scaler=self.scaler, surroundings=self.surroundings.params())
+                        scaler=self.scaler, surroundings=self.surroundings.params(), batch=self.batch)
 
     def resume(self) -> None:
         """Continue from the output folder's checkpoint, exactly where it was written."""
@@ -189,6 +205,7 @@ class Trainer:
         meta = checkpoint.restore(path, self.opt, names, self.scaler)
         self.iteration = meta['iteration']
         self.best_loss = meta['best_loss']
+        self.batch = meta.get('batch', self.cfg.batch_rays)
         guards.repair_log(os.path.join(self.out, 'log.jsonl'), self.iteration)
 
     # ------------------------------------------------------------- training
@@ -199,7 +216,8 @@ class Trainer:
         start = time.perf_counter()
         self.integrator.begin_step(StepState(step=it, cos_anneal_ratio=cfg.cos_anneal_ratio(it),
                                              seed=step_seed(cfg.seed, it, JITTER)))
-        ray, target = self.pixels.batch(it, cfg.batch_rays)
+        batch = self.batch
+        ray, target = self.pixels.batch(it, batch)
         result = self.integrator.render_rays(self.scene, ray)
         l_color = losses.color_l1(result.color, target)
         l_trans = losses.transmittance_sparsity(result.sparsity)
@@ -207,7 +225,7 @@ class Trainer:
         loss = l_color + cfg.trans_weight * l_trans + cfg.eikonal_weight * l_eik
         if self.silhouette is not None:
             loss += cfg.silhouette_weight * self.silhouette(it)
-        mse = dr.mean(dr.square(dr.detach(result.color) - target), axis=None)
+        mse = losses.mean(dr.square(dr.detach(result.color) - target))
         samples = dr.sum(result.n_samples)
         # Scheduled, the loss terms are computed in the launch that evaluates
         # the gradients rather than in a forward pass of their own.
@@ -239,10 +257,13 @@ class Trainer:
         self.best_loss = min(self.best_loss, value)
         elapsed = time.perf_counter() - start
         m = float(mse[0])
+        n_samples = float(samples[0])
+        if cfg.sample_budget:
+            self.batch = next_batch(cfg, n_samples / batch)
         return StepStats(loss=value, color=float(l_color[0]), trans=float(l_trans[0]),
                          eikonal=float(l_eik[0]), psnr=float('inf') if m == 0 else -10.0 * np.log10(m),
-                         learning_rate=lr, inv_s=float(self.field.inv_s()[0]),
-                         rays_per_s=cfg.batch_rays / elapsed, samples=float(samples[0]), seconds=elapsed)
+                         learning_rate=lr, inv_s=float(self.field.inv_s()[0]), rays=batch,
+                         rays_per_s=batch / elapsed, samples=n_samples, seconds=elapsed)
 
     def _check(self, value: float, it: int) -> None:
         if not np.isfinite(value):

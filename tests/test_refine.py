@@ -26,7 +26,7 @@ from reneus_mi.optimize import spec_of_scene
 from reneus_mi.scene import write_scene
 from reneus_mi.silhouette import SilhouetteLoss
 from reneus_mi.surroundings import ContainerPose, Light, fibonacci_directions, sh_basis
-from reneus_mi.synth import make_dataset, write_container
+from reneus_mi.synth import make_dataset, miscalibrated, write_container
 
 
 def _constant(value=AMBIENT):
@@ -146,7 +146,7 @@ def rounded_block(tmp_path_factory):
     mesh.apply_transform(rot)
     mesh.vertex_normals = normals @ rot[:3, :3].T
     path = str(tmp_path_factory.mktemp('rounded') / 'rounded.ply')
-    write_container(mesh, 'rounded', path)
+    write_container(mesh, path, smooth=True)
     return path
 
 
@@ -186,29 +186,15 @@ def photographs(tmp_path_factory):
     return folder
 
 
-def _moved_container(ds, folder) -> str:
-    """The container shifted by 2 % of its size and scaled by 1.02 (a calibration error)."""
-    mesh = trimesh.load(ds.container, process=False)
-    size = mesh.extents.max()
-    centre = mesh.bounds.mean(axis=0)
-    M = np.eye(4)
-    M[:3, :3] *= 1.02
-    M[:3, 3] = centre - 1.02 * centre + np.array([0.02, -0.01, 0.005]) * size
-    mesh.apply_transform(M)
-    path = str(folder / 'moved_box.ply')
-    mesh.export(path)
-    return path
-
-
 def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]:
     ds = load_dataset(str(folder / 'box'))
     settings = {}
     if quantity == 'ior':
-        ds.ior = 1.40
+        ds = miscalibrated(ds, str(folder), ior=1.40)
     elif quantity == 'ambient':
         settings['ambient'] = 0.7
     else:
-        ds.container = _moved_container(ds, folder)
+        ds = miscalibrated(ds, str(folder), offset=(0.02, -0.01, 0.005), scale=1.02)
     xml = str(folder / f'scene_{quantity}.xml')
     write_scene(ds, xml, preset='fast', **settings)
     spec = spec_of_scene(xml, str(folder / 'box'))

@@ -149,26 +149,42 @@ def test_resume_on_a_moved_dataset_is_checked(scene_xml, tmp_path):
         optimize.main(['-o', str(out), '--resume', '--data', str(other), '--iterations', '3', '--quiet'])
 
 
-def test_training_steps_reuse_their_kernels(scene_xml, tmp_path):
-    """Per-step values (seeds, annealing, learning rate, open levels) reach the kernels as data:
-    a literal would compile new kernels every step (it once filled ~/.drjit with 97,000 files
-    and slowed steps 7x)."""
+@pytest.mark.parametrize('budget', [0, 24_000], ids=['fixed_batch', 'sample_budget'])
+def test_training_steps_reuse_their_kernels(scene_xml, tmp_path, budget):
+    """Per-step values (seeds, annealing, learning rate, open levels, the batch size under a
+    sample budget) reach the kernels as data: a literal would compile new kernels every step
+    (it once filled ~/.drjit with 97,000 files and slowed steps 7x)."""
     from reneus_mi.scene import write_scene
     from reneus_mi.data import load_dataset
     from reneus_mi.optimize import spec_of_scene
     xml = str(tmp_path / 'fast.xml')
     write_scene(load_dataset(os.path.join(os.path.dirname(scene_xml), 'box')), xml, preset='fast')
     spec = spec_of_scene(xml, None)
-    spec.config = replace(spec.config, **{'train.batch_rays': 64, 'train.anneal_end': 50,
+    spec.config = replace(spec.config, **{'train.batch_rays': 64 if not budget else 256,
+                                          'train.anneal_end': 50, 'train.sample_budget': budget,
                                           'model.sampler.occupancy_update_every': 1000})
     trainer = runs.make_trainer(spec, str(tmp_path / 'run'))
 
     for _ in range(8):
         trainer.step()
+    batches = set()
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory):
         for _ in range(12):
-            trainer.step()
+            batches.add(trainer.step().rays)
         new = [k for k in dr.kernel_history() if k.get('type') == dr.KernelType.JIT and not k['cache_hit']]
+    if budget:
+        assert len(batches) > 1, batches   # the batch did follow the samples per ray
     # Fewer than one per step: a branch of the ray tree taken for the first time compiles
     # its kernels (measured 0 to 8); a per-step literal compiles at least one every step.
     assert len(new) < 12, len(new)
+
+
+def test_sample_budget_sets_the_next_batch():
+    from reneus_mi.config import TrainConfig
+    from reneus_mi.trainer import next_batch
+    cfg = TrainConfig(batch_rays=1024, sample_budget=40_960)
+    assert next_batch(cfg, 40.0) == 1024
+    assert next_batch(cfg, 10.0) == 4096            # empty space skipped: more rays
+    assert next_batch(cfg, 1.0) == 8192             # at most 8x
+    assert next_batch(cfg, 1000.0) == 256           # at least 1/8 (and one quantum)
+    assert next_batch(cfg, 33.0) % 256 == 0
