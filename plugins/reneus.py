@@ -62,7 +62,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     NeuS volume rendering inside it.
 
     The scene's shapes must all carry a smooth ``dielectric`` BSDF: together
-    they are the container, and its IOR is the BSDF's η. The scene's
+    they are the container, and its IOR is the BSDF's η (a mesh with vertex
+    normals bends light by them, as Mitsuba's ``dielectric`` does). The scene's
     environment emitter (usually ``constant``, 0.8 in the paper) is the ambient
     light C_out. Inside the container lives a field (:mod:`reneus_mi.fields`):
     an SDF with a radiance, rendered with NeuS's unbiased weights.
@@ -105,6 +106,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
        - The ray tree (:class:`~reneus_mi.config.RenderConfig`): ``reneus``,
          ``neus`` or ``neus_plus``; D_re; ``ambient`` or ``black``; the output
          is C^(1/gamma); AOVs ``mask``, ``sparsity``, ``nx, ny, nz``.
+     * - light, container_pose
+       - |string|, |bool|
+       - The light outside: the scene's ``emitter``, or a refinable
+         ``ambient`` RGB or ``sh`` (order 2) started from it; a refinable pose
+         and per-axis scale of the container (:mod:`reneus_mi.surroundings`).
      * - n_coarse, n_fine, n_upsample_steps, upsample_s, occupancy_*
        - |int|, |int|, |int|, |float|, ...
        - Samples per inside segment and the occupancy grid that skips empty space

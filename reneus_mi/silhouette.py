@@ -37,8 +37,8 @@ VIEWS_PER_STEP = 16
 class SilhouetteLoss:
     """Mean distance (pixels) of the refined container's silhouette to the masks' boundaries."""
 
-    def __init__(self, dataset: Dataset, container: trimesh.Trimesh, pose: ContainerPose):
-        self.pose = pose
+    def __init__(self, dataset: Dataset, container: trimesh.Trimesh):
+        """``container``: the mesh as the scene loaded it (world coordinates)."""
         self.n_views, self.height, self.width = dataset.masks.shape
         # Signed distance to the mask boundary, per pixel centre: > 0 outside, < 0 inside.
         maps = [distance_transform_edt(~m) - distance_transform_edt(m) for m in dataset.masks]
@@ -64,18 +64,19 @@ class SilhouetteLoss:
         self.w2c = mi.Float(w2c[:, :3, :].astype(np.float32).ravel())
         self.centre = mi.Float(dataset.c2w[:, :3, 3].astype(np.float32).ravel())
 
-    def __call__(self, step: int) -> mi.Float:
+    def __call__(self, step: int, pose: ContainerPose) -> mi.Float:
+        """The loss of the step's views with the container at ``pose``."""
         n_points = dr.width(self.points)
         views = [(step * VIEWS_PER_STEP + j) % self.n_views for j in range(VIEWS_PER_STEP)]
         lane = dr.arange(mi.UInt32, n_points * len(views))
         # The views of this step, read from memory: their numbers must not compile into kernels.
         view = dr.gather(mi.UInt32, mi.UInt32(views), lane // n_points)
         i = lane % n_points
-        p = self.pose.to_world(dr.gather(mi.Point3f, self.points, i))
+        p = pose.to_world(dr.gather(mi.Point3f, self.points, i))
         eye = dr.gather(mi.Point3f, self.centre, view)
         towards = eye - p
-        a = dr.dot(self.pose.normal_to_world(dr.gather(mi.Vector3f, self.normal_a, i)), towards)
-        b = dr.dot(self.pose.normal_to_world(dr.gather(mi.Vector3f, self.normal_b, i)), towards)
+        a = dr.dot(pose.normal_to_world(dr.gather(mi.Vector3f, self.normal_a, i)), towards)
+        b = dr.dot(pose.normal_to_world(dr.gather(mi.Vector3f, self.normal_b, i)), towards)
         silhouette = dr.detach(a * b) < 0.0
         rows = [dr.gather(mi.Vector4f, self.w2c, 3 * view + r) for r in range(3)]
         q = mi.Vector3f(*(dr.dot(mi.Vector3f(row.x, row.y, row.z), p) + row.w for row in rows))

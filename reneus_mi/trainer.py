@@ -1,15 +1,20 @@
 """Fitting the ``reneus`` integrator's field to posed photographs (Sec. 3.4).
 
 Each step draws ``batch_rays`` pixels at random among the container-mask
-pixels of all views (:class:`~reneus_mi.pixel_sampler.PixelSampler`), renders
-them with :meth:`ReNeuSIntegrator.render_rays` (what ``mi.render`` runs too),
-and takes one ``mi.ad.Adam`` step on L = L_color + λ1 L_trans + λ2 L_reg. The
-parameters are ``mi.traverse(scene)``'s view of the field's own arrays, updated
-with ``params.update(opt)``, as in a hand-written Mitsuba optimisation loop.
+pixels of all views (:class:`~reneus_mi.pixel_sampler.PixelSampler`; under a
+``sample_budget`` the batch follows the samples per ray), renders them with
+:meth:`ReNeuSIntegrator.render_rays` (what ``mi.render`` runs too), and takes
+one ``mi.ad.Adam`` step on L = L_color + λ1 L_trans + λ2 L_reg (+ the
+container's silhouette term while its pose is refined). The parameters are
+``mi.traverse(scene)``'s view of the field's own arrays, and of the IOR, pose
+and light a run refines (:mod:`reneus_mi.surroundings`), updated with
+``params.update(opt)``, as in a hand-written Mitsuba optimisation loop.
 The run lives in one output folder::
 
     config.json       the whole configuration and where the scene and data came from
-    log.jsonl         one line every log_every steps: losses, PSNR, learning rate, s, rays/s
+    log.jsonl         one line every log_every steps: losses, PSNR, learning rate, s, rays/s,
+                      and the refined IOR, pose and light
+    container_refined.ply   the container at its refined pose (with refine_pose)
     checkpoint.npz    the latest checkpoint (atomic; --resume continues from it)
     images/           validation renders (image | photograph) and normal maps
     meshes/           mesh snapshots (64^3) at validation steps
@@ -133,8 +138,7 @@ class Trainer:
                               'then follows the refraction alone (weak for flat glass)')
             else:
                 from reneus_mi.silhouette import SilhouetteLoss
-                s = self.surroundings
-                self.silhouette = SilhouetteLoss(dataset, s.mesh(), s.pose)
+                self.silhouette = SilhouetteLoss(dataset, self.surroundings.mesh())
         self.iteration = 0
         self.best_loss = float('inf')
         self.batch = cfg.batch_rays
@@ -224,7 +228,7 @@ class Trainer:
         l_eik = losses.eikonal(result.eikonal, result.n_samples)
         loss = l_color + cfg.trans_weight * l_trans + cfg.eikonal_weight * l_eik
         if self.silhouette is not None:
-            loss += cfg.silhouette_weight * self.silhouette(it)
+            loss += cfg.silhouette_weight * self.silhouette(it, self.surroundings.pose)
         mse = losses.mean(dr.square(dr.detach(result.color) - target))
         samples = dr.sum(result.n_samples)
         # Scheduled, the loss terms are computed in the launch that evaluates

@@ -192,6 +192,16 @@ def test_optimize_missing_scene(tmp_path):
             str(tmp_path / 'absent.xml'), 'does not exist', watch=[tmp_path])
 
 
+@pytest.mark.parametrize('args, expected', [
+    (['--refine-light', 'room'], ("refine_light='room'", "'ambient'", "'sh'")),
+    (['--ior-range', '2', '1.2'], ('ior_range=[2.0, 1.2]', 'expected 1 < low < high')),
+    (['--sample-budget', '-5'], ('sample_budget=-5',)),
+], ids=['light_model', 'ior_range', 'sample_budget'])
+def test_optimize_refinement_switches(world, tmp_path, args, expected):
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, *args], *expected,
+            watch=[tmp_path])
+
+
 def test_optimize_missing_data(world, tmp_path):
     refused(optimize.main, train(world, tmp_path / 'nowhere', tmp_path),
             str(tmp_path / 'nowhere'), 'dataset folder is missing', watch=[tmp_path])

@@ -92,9 +92,10 @@ def train_state(trainer: Trainer) -> dict:
 
 
 def file_state(path) -> dict:
-    """The same arrays read from a checkpoint file."""
+    """The same arrays read from a checkpoint file (refined surroundings as parameters)."""
     with np.load(str(path), allow_pickle=False) as f:
-        return {k: f[k] for k in f.files if k.startswith(('param/', 'adam/'))}
+        return {k.replace('surroundings/', 'param/'): f[k] for k in f.files
+                if k.startswith(('param/', 'adam/', 'surroundings/'))}
 
 
 def differences(a: dict, b: dict) -> dict:
@@ -130,18 +131,21 @@ def run_steps(trainer: Trainer, n: int) -> None:
 N = 3
 
 
-def _resume_vs_unbroken(scene_xml, tmp_path):
-    unbroken = new_trainer(scene_xml, tmp_path / 'unbroken')
+def _resume_vs_unbroken(scene_xml, tmp_path, **cfg):
+    unbroken = new_trainer(scene_xml, tmp_path / 'unbroken', **cfg)
     run_steps(unbroken, 2 * N)
 
-    first = new_trainer(scene_xml, tmp_path / 'broken')
+    first = new_trainer(scene_xml, tmp_path / 'broken', **cfg)
     run_steps(first, N)
     first.save_checkpoint()
     # The checkpoint holds the optimiser's weights after the N-th update.
-    assert_same_state(train_state(first), file_state(first.checkpoint_path), exact=True)
+    state, saved = train_state(first), file_state(first.checkpoint_path)
+    # The surroundings are saved whether refined or not (the IOR always).
+    assert set(state) <= set(saved)
+    assert_same_state(state, {k: v for k, v in saved.items() if k in state}, exact=True)
     del first  # killed
 
-    resumed = new_trainer(scene_xml, tmp_path / 'broken')
+    resumed = new_trainer(scene_xml, tmp_path / 'broken', **cfg)
     resumed.resume()
     assert resumed.iteration == N
     run_steps(resumed, N)
@@ -162,6 +166,19 @@ def test_resume_matches_unbroken_run(scene_xml, tmp_path):
     init = new_trainer(scene_xml, tmp_path / 'init')
     moved = differences(a, train_state(init))
     assert min(moved[f'param/{init._name(k)}'] for k in init.opt.keys()) > 30 * PARAM_ATOL
+
+
+def test_resume_of_a_refining_run_matches_unbroken_run(scene_xml, tmp_path):
+    # IOR, pose (with the silhouette term), SH light and a sample budget: their values, Adam
+    # states and the batch size come back from the checkpoint.
+    refine = dict(refine_ior=True, refine_pose=True, refine_light='sh', refine_after=0,
+                  sample_budget=2000, batch_rays=64)
+    a, b = _resume_vs_unbroken(scene_xml, tmp_path, **refine)
+    assert {'param/container.eta', 'param/container.translation', 'param/light.sh'} <= set(a)
+    assert_same_state(a, b, exact=False)
+    init = new_trainer(scene_xml, tmp_path / 'init', **refine)
+    moved = differences(a, train_state(init))
+    assert moved['param/container.translation'] > 30 * PARAM_ATOL
 
 
 # ----------------------------------------------------------------------- seed

@@ -242,11 +242,11 @@ def test_silhouette_is_least_at_the_true_pose(photographs):
     assert ds.masks_measured
     truth = trimesh.load(ds.container, process=False)
     pose = ContainerPose(truth.bounds.mean(axis=0))
-    loss = SilhouetteLoss(ds, truth, pose)
-    at_truth = float(loss(0)[0])
+    loss = SilhouetteLoss(ds, truth)
+    at_truth = float(loss(0, pose)[0])
     pose.translation = mi.Float(0.03, 0.0, 0.0)
     dr.enable_grad(pose.translation)
-    moved = loss(0)
+    moved = loss(0, pose)
     dr.backward(moved)
     assert at_truth < 0.5 < float(moved[0])        # pixels
     assert dr.grad(pose.translation)[0] > 0.0      # descending moves it back
