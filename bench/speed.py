@@ -2,7 +2,7 @@
 
     python bench/speed.py [--presets fast cpu paper] [--minutes 10] [--points 0.5 1 2 5 10]
                           [--views 48] [--res 128] [--object insect] [--out runs/speed] [--doc docs]
-                          [--set train.sample_budget=49152 ...]
+                          [--set train.sample_budget=49152 model.render.rr_threshold=0.2 ...]
 
 On one synthetic scene of the generator (``reneus_mi.synth``: the object in
 its glass block, Mitsuba's path tracer, rendered once into ``OUT/data``) each
@@ -107,18 +107,21 @@ def child(args) -> None:
 
 
 def settings(pairs: list[str]) -> dict:
-    """``--set section.name=value`` pairs as typed configuration changes."""
-    from reneus_mi.config import ReconstructionConfig, typed_value
+    """``--set dotted.path=value`` pairs (``train.sample_budget=49152``,
+    ``model.render.rr_threshold=0.2``) as typed configuration changes."""
+    import dataclasses
     import typing
+    from reneus_mi.config import ReconstructionConfig, typed_value
     out = {}
     for pair in pairs:
         key, _, text = pair.partition('=')
-        section, _, name = key.partition('.')
-        cls = typing.get_type_hints(ReconstructionConfig)[section] if section in ('train',) else None
-        if cls is None or name not in typing.get_type_hints(cls):
-            raise SystemExit(f'--set {pair}: expected train.<setting>=<value>')
-        kind = typing.get_type_hints(cls)[name]
-        out[key] = typed_value(json.loads(text) if kind is not str else text, kind, f'--set {key}')
+        cls, kind = ReconstructionConfig, None
+        for name in key.split('.'):
+            hints = typing.get_type_hints(cls) if dataclasses.is_dataclass(cls) else {}
+            if name not in hints:
+                raise SystemExit(f'--set {pair}: {key} is not a setting (e.g. train.sample_budget=49152)')
+            cls = kind = hints[name]
+        out[key] = typed_value(text if kind is str else json.loads(text), kind, f'--set {key}')
     return out
 
 
@@ -180,8 +183,9 @@ def main(argv=None) -> int:
     p.add_argument('--mesh-resolution', type=int, default=128)
     p.add_argument('--out', default=os.path.join('runs', 'speed'))
     p.add_argument('--doc', default=os.path.join(ROOT, 'docs'))
-    p.add_argument('--set', nargs='*', default=[], metavar='train.NAME=VALUE',
-                   help='training settings for every preset (e.g. train.sample_budget=49152)')
+    p.add_argument('--set', nargs='*', default=[], metavar='PATH=VALUE',
+                   help='settings for every preset (e.g. train.sample_budget=49152, '
+                        'model.render.rr_threshold=0.2)')
     p.add_argument('--one', help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     args.out = os.path.abspath(args.out)
