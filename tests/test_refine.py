@@ -176,7 +176,9 @@ def test_smooth_container_comparison_has_teeth(rounded_block, monkeypatch):
 
 
 # ------------------------------------------------------------ recovery runs
-VIEWS, RES, ITERATIONS = 24, 64, 300
+VIEWS, RES, ITERATIONS = 24, 96, 300
+#: The miscalibrated container: shifted by this fraction of its size, scaled by SCALE.
+OFFSET, SCALE = (0.02, -0.01, 0.005), 1.02
 
 
 @pytest.fixture(scope='module')
@@ -194,7 +196,7 @@ def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]
     elif quantity == 'ambient':
         settings['ambient'] = 0.7
     else:
-        ds = miscalibrated(ds, str(folder), offset=(0.02, -0.01, 0.005), scale=1.02)
+        ds = miscalibrated(ds, str(folder), offset=OFFSET, scale=SCALE)
     xml = str(folder / f'scene_{quantity}.xml')
     write_scene(ds, xml, preset='fast', **settings)
     spec = spec_of_scene(xml, str(folder / 'box'))
@@ -210,13 +212,17 @@ def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]
     return chamfer(load_mesh(result['mesh']), gt)['chamfer'], result, out
 
 
-def _pose_error(refined: str, truth: str) -> float:
-    """Largest distance between matching corners of two boxes, over the box's diagonal."""
-    a, b = trimesh.load(refined), trimesh.load(truth)
-    a.merge_vertices()
-    b.merge_vertices()
-    dist = np.linalg.norm(a.vertices[:, None] - b.vertices[None], axis=2).min(axis=1)
-    return float(dist.max() / np.linalg.norm(b.extents))
+def _pose_errors(values: dict, truth_container: str) -> tuple[float, float, float]:
+    """(shift error / container size, largest scale error, rotation angle) of a refined pose.
+
+    The container was moved by ``OFFSET`` x size and scaled by ``SCALE`` about its centre, and
+    the pose's pivot is the moved container's centre: the truth is a shift of -OFFSET x size,
+    a scale of 1/SCALE and no rotation."""
+    size = trimesh.load(truth_container).extents.max()
+    shift = np.array(values['container.translation']) + np.array(OFFSET) * size
+    scale = np.array(values['container.scale']) * SCALE - 1.0
+    return (float(np.linalg.norm(shift) / size), float(np.abs(scale).max()),
+            float(np.linalg.norm(values['container.rotation'])))
 
 
 @pytest.mark.slow
@@ -233,7 +239,11 @@ def test_refining_recovers_the_truth_and_the_shape(photographs, quantity):
     elif quantity == 'ambient':
         assert np.abs(np.array(values['light.radiance']) - 0.8).max() < 0.01
     else:
-        assert _pose_error(result['container'], str(photographs / 'box.ply')) < 0.003
+        shift, scale, angle = _pose_errors(values, str(photographs / 'box.ply'))
+        print(f'pose errors: shift {shift:.4f} of the size, scale {scale:.4f}, rotation {angle:.4f} rad')
+        # From a 2.3 % shift and a 2 % scale error (measured at 96 px: 0.07 % and 0.14 %; at
+        # 64 px the masks' pixels limit the silhouette term to about 0.25 %).
+        assert shift < 0.003 and scale < 0.003 and angle < 0.01
     assert refined < fixed
 
 
