@@ -328,8 +328,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         # Candidates 0..n-1 are the reflected rays, n..2n-1 the refracted ones.
         n = rays.size
         j = dr.arange(mi.UInt32, 2 * n)
-        refracted = j >= n
-        lane = dr.select(refracted, j - n, j)
+        # The count reaches the kernel as data: it changes from step to step.
+        half = dr.opaque(mi.UInt32, n)
+        refracted = j >= half
+        lane = dr.select(refracted, j - half, j)
         β_all = dr.select(refracted, dr.gather(mi.Float, β_t, lane), dr.gather(mi.Float, β_r, lane))
         alive = dr.gather(mi.Bool, hit.valid, lane) & (dr.detach(β_all) > 0.0)
         threshold = self.model.render.rr_threshold

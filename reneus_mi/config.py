@@ -94,7 +94,7 @@ class TrainConfig:
     sample_budget: int = 0
     """Field samples per step: the batch then grows or shrinks each step (by 256 rays, up to 8x
     either way) to render about this many, so that rays the occupancy grid makes cheap fill the
-    device (0: a fixed batch)."""
+    device; each batch size compiles its kernels once (0: a fixed batch)."""
     learning_rate: float = 5e-4
     """Peak learning rate of Adam (NeuS); the field scales it per parameter group."""
     learning_rate_alpha: float = 0.05
