@@ -64,28 +64,26 @@ def specs(obj: str, data: str, out: str, quantities, iterations: int) -> dict:
     return out_specs
 
 
-def recovered(q: str, result: dict, truth_container: str) -> str:
+def corner_error(mesh: str, truth: str) -> float:
+    """Largest distance from a corner of ``mesh`` to the nearest of ``truth``, over its diagonal."""
+    import trimesh
+    a, b = trimesh.load(mesh), trimesh.load(truth)
+    a.merge_vertices()
+    b.merge_vertices()
+    return float(np.linalg.norm(a.vertices[:, None] - b.vertices[None], axis=2).min(axis=1).max()
+                 / np.linalg.norm(b.extents))
+
+
+def recovered(q: str, result: dict, folder: str, truth_container: str) -> str:
     """The refined value against the truth, as a table cell."""
     values = result.get('refined', {})
     if q == 'ior':
         return f"IOR {values['container.eta']:.4f} (truth 1.45)"
     if q == 'ambient':
         return f"ambient {np.mean(values['light.radiance']):.4f} (truth 0.8)"
-    import trimesh
-    a, b = trimesh.load(result['container']), trimesh.load(truth_container)
-    a.merge_vertices()
-    b.merge_vertices()
-    err = np.linalg.norm(a.vertices[:, None] - b.vertices[None], axis=2).min(axis=1).max()
-    return (f"corner error {100 * err / np.linalg.norm(b.extents):.2f} % of the diagonal "
-            f"(start {100 * _start_error():.2f} %)")
-
-
-def _start_error() -> float:
-    """The miscalibration's corner error for a unit box, as a fraction of its diagonal."""
-    wrong = WRONG['pose'][0]
-    corners = np.array([[x, y, z] for x in (-.5, .5) for y in (-.5, .5) for z in (-.5, .5)])
-    moved = corners * wrong['scale'] + np.array(wrong['offset'])
-    return float(np.linalg.norm(moved - corners, axis=1).max() / np.sqrt(3))
+    start = corner_error(os.path.join(folder, 'container_miscalibrated.ply'), truth_container)
+    return (f"corner error {100 * corner_error(result['container'], truth_container):.2f} % of the "
+            f"diagonal (start {100 * start:.2f} %)")
 
 
 def main(argv=None) -> int:
@@ -120,7 +118,7 @@ def main(argv=None) -> int:
         cd = {k: chamfer(load_mesh(r['mesh']), gt)['chamfer'] for k, r in results.items()}
         for q in args.quantities:
             rows.append(f"| {obj} | {q} | {cd['truth']:.2f} | {cd[f'{q}_fixed']:.2f} | "
-                        f"{cd[f'{q}_refined']:.2f} | {recovered(q, results[f'{q}_refined'], os.path.join(root, 'box.ply'))} |")
+                        f"{cd[f'{q}_refined']:.2f} | {recovered(q, results[f'{q}_refined'], os.path.join(out, obj), os.path.join(root, 'box.ply'))} |")
             print(rows[-1], flush=True)
     minutes = (time.perf_counter() - start) / 60
     md = '\n'.join([

@@ -278,8 +278,8 @@ def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=
         out.ior = ior
     if offset is not None or scale is not None:
         mesh = trimesh.load(ds.container, process=False)
-        fields = mesh.metadata.get('_ply_raw', {}).get('vertex', {}).get('data')
-        smooth = fields is not None and 'nx' in (fields.dtype.names or ())
+        # Whether the file carries vertex normals, as Mitsuba (which renders it) reads it.
+        smooth = mi.load_dict({'type': 'ply', 'filename': ds.container}).has_vertex_normals()
         normals = np.asarray(mesh.vertex_normals) if smooth else None
         s = 1.0 if scale is None else scale
         centre = mesh.bounds.mean(axis=0)

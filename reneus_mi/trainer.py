@@ -182,8 +182,8 @@ class Trainer:
         if not self._refined:
             return {}
         values = self.surroundings.values()
-        keep = set(self._refined) | {'container.scale' if 'container.log_scale' in self._refined else '',
-                                     'light.mean' if 'light.sh' in self._refined else ''}
+        derived = {'container.log_scale': 'container.scale', 'light.sh': 'light.mean'}
+        keep = set(self._refined) | {derived[k] for k in self._refined if k in derived}
         return {k: v for k, v in values.items() if k in keep}
 
     # ------------------------------------------------------------ checkpoints
