@@ -33,8 +33,6 @@ from reneus_mi.errors import ReneusError
 
 #: Light models: the scene's emitter as given, one refinable RGB radiance, order-2 SH.
 LIGHTS = ('emitter', 'ambient', 'sh')
-#: Real SH of order <= 2: (normalisation, monomial) in the order of the coefficients.
-SH_TERMS = 9
 #: Directions that project an emitter onto the SH basis (Fibonacci sphere).
 _PROJECTION_DIRECTIONS = 4096
 
