@@ -271,8 +271,14 @@ def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=
     """``ds`` as a calibration would leave it: the container's IOR taken as ``ior``, or the
     container shifted by ``offset`` (a fraction of its largest extent, per axis) and scaled
     by ``scale`` about its centre (written to ``folder/container_miscalibrated.ply``). The
-    photographs and masks stay the truth; refinement should find its way back to it."""
+    photographs and masks stay the truth; refinement should find its way back to it.
+
+    The data stays as it was made: ``folder`` may not be the dataset's own folder, and the
+    mesh may not replace one of its inputs."""
     import dataclasses
+    target = guards.check_output_file(os.path.join(folder, 'container_miscalibrated.ply'),
+                                      inputs=[p for p in (ds.root, ds.container) if p],
+                                      overwrite=True, what='miscalibrated container')
     out = dataclasses.replace(ds)
     if ior is not None:
         out.ior = ior
@@ -287,7 +293,7 @@ def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=
         M[:3, :3] *= s
         M[:3, 3] = (1.0 - s) * centre + np.asarray(offset if offset is not None else (0, 0, 0)) * mesh.extents.max()
         mesh.apply_transform(M)
-        out.container = os.path.join(folder, 'container_miscalibrated.ply')
+        out.container = target
         if smooth:
             # A uniform scale and a shift leave the normals as they were.
             mesh.vertex_normals = normals

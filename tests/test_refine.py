@@ -20,6 +20,7 @@ from reference import AMBIENT, path_reference, path_scene, pixel_rays, reneus_pi
 from reneus_mi import runs
 from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
+from reneus_mi.errors import ReneusError
 from reneus_mi.evaluate import chamfer, load_mesh
 from reneus_mi.objects import container_mesh
 from reneus_mi.optimize import spec_of_scene
@@ -176,7 +177,11 @@ def test_smooth_container_comparison_has_teeth(rounded_block, monkeypatch):
 
 
 # ------------------------------------------------------------ recovery runs
-VIEWS, RES, ITERATIONS = 24, 96, 300
+VIEWS, RES = 24, 96
+#: Steps per run. The IOR's estimate follows the field's sharpness: it overshoots while the
+#: field is blurred and settles as inv_s grows (300 steps ended at 1.458 to 1.463, on the edge
+#: of the tolerance; 1000 steps at 1.4546 to 1.4555 in three runs).
+ITERATIONS = {'ior': 1000, 'ambient': 300, 'pose': 300}
 #: The miscalibrated container: shifted by this fraction of its size, scaled by SCALE.
 OFFSET, SCALE = (0.02, -0.01, 0.005), 1.02
 
@@ -200,7 +205,7 @@ def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]
     xml = str(folder / f'scene_{quantity}.xml')
     write_scene(ds, xml, preset='fast', **settings)
     spec = spec_of_scene(xml, str(folder / 'box'))
-    changes = {'train.iterations': ITERATIONS, 'train.batch_rays': 512, 'train.validate_every': 0,
+    changes = {'train.iterations': ITERATIONS[quantity], 'train.batch_rays': 512, 'train.validate_every': 0,
                'train.checkpoint_every': 0, 'train.mesh_resolution': 128, 'train.log_every': 50}
     if refine:
         changes.update({'ior': {'train.refine_ior': True}, 'ambient': {'train.refine_light': 'ambient'},
@@ -260,3 +265,11 @@ def test_silhouette_is_least_at_the_true_pose(photographs):
     dr.backward(moved)
     assert at_truth < 0.5 < float(moved[0])        # pixels
     assert dr.grad(pose.translation)[0] > 0.0      # descending moves it back
+
+
+def test_miscalibrated_leaves_the_dataset_alone(photographs):
+    ds = load_dataset(str(photographs / 'box'))
+    before = sorted(os.listdir(ds.root))
+    with pytest.raises(ReneusError, match='miscalibrated container .*box'):
+        miscalibrated(ds, ds.root, offset=OFFSET)
+    assert sorted(os.listdir(ds.root)) == before
