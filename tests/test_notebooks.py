@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from nbclient import NotebookClient
 
+from reneus_mi.presets import preset
+
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..'))
 NOTEBOOKS = os.path.join(ROOT, 'notebooks')
 
@@ -56,16 +58,18 @@ def test_rendering_through_glass(tmp_path, monkeypatch):
 @pytest.mark.slow
 def test_reconstruction(tmp_path, monkeypatch):
     r = run_notebook('02_reconstruction.ipynb',
-                     "{'history': history, 'weights': [λ1, λ2], 'steps': ITERATIONS, "
+                     "{'history': history, 'weights': [λ1, λ2], 'preset': PRESET, 'steps': ITERATIONS, "
                      "'changed': float(np.abs(np.asarray(after) - np.asarray(before)).mean()), "
                      "'vertices': len(mesh.vertices), 'chamfer': chamfer(mesh, gt)['chamfer']}",
                      tmp_path, monkeypatch)
     h = r['history']
-    assert r['weights'] == [0.1, 0.1]  # the paper's λ1, λ2
+    train = preset(r['preset']).train
+    λ1, λ2 = r['weights']
+    assert (λ1, λ2) == (train.trans_weight, train.eikonal_weight)
     assert len(h['loss']) == r['steps'] and np.all(np.isfinite(h['loss']))
     # The loss of Eq. 13 is the weighted sum of its three terms at every step.
-    np.testing.assert_allclose(h['loss'], np.asarray(h['color']) + 0.1 * np.asarray(h['trans'])
-                               + 0.1 * np.asarray(h['eikonal']), rtol=1e-5)
+    np.testing.assert_allclose(h['loss'], np.asarray(h['color']) + λ1 * np.asarray(h['trans'])
+                               + λ2 * np.asarray(h['eikonal']), rtol=1e-5)
     # params.update(opt) wrote into the field that mi.render renders: the image moved.
     assert r['changed'] > 1e-3, r['changed']
     assert r['vertices'] > 0 and np.isfinite(r['chamfer'])
