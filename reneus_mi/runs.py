@@ -129,10 +129,8 @@ def with_refinement(config: ReconstructionConfig) -> ReconstructionConfig:
         changes['model.render.container_pose'] = True
     if train.refine_light != 'none':
         changes['model.render.light'] = train.refine_light
-    if changes and render.mode == 'neus':
-        raise ReneusError('refine_pose and refine_light need a container: mode is neus')
-    if train.refine_ior and render.mode == 'neus':
-        raise ReneusError('refine_ior needs a container: mode is neus')
+    if train.refined() and render.mode == 'neus':
+        raise ReneusError('refine_ior, refine_pose and refine_light need a container: mode is neus')
     return replace(config, **changes)
 
 

@@ -33,6 +33,8 @@ from reneus_mi.errors import ReneusError
 
 #: Light models: the scene's emitter as given, one refinable RGB radiance, order-2 SH.
 LIGHTS = ('emitter', 'ambient', 'sh')
+#: Y_00, the constant spherical harmonic: an SH light's mean radiance is c_00 Y_00.
+_Y00 = 0.282095
 #: Directions that project an emitter onto the SH basis (Fibonacci sphere).
 _PROJECTION_DIRECTIONS = 4096
 
@@ -40,7 +42,7 @@ _PROJECTION_DIRECTIONS = 4096
 def sh_basis(d: mi.Vector3f) -> list:
     """The 9 real spherical harmonics Y_lm (l <= 2) of unit directions ``d``."""
     x, y, z = d.x, d.y, d.z
-    return [0.282095 + 0.0 * x,
+    return [_Y00 + 0.0 * x,
             0.488603 * y, 0.488603 * z, 0.488603 * x,
             1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3.0 * z * z - 1.0),
             1.092548 * x * z, 0.546274 * (x * x - y * y)]
@@ -97,7 +99,7 @@ class Light:
     def mean(self) -> np.ndarray:
         """Mean radiance over the sphere (RGB): what a uniform room of the same power shows."""
         c = np.array(self.coefficients, np.float64).reshape(-1, 3)
-        return c[0] if self.kind == 'ambient' else c[0] * 0.282095
+        return c[0] if self.kind == 'ambient' else c[0] * _Y00
 
 
 def _cross_matrix(v) -> mi.Matrix3f:
@@ -207,8 +209,7 @@ class Surroundings:
         out = {name: np.array(value, np.float64).round(6).tolist() for name, value in self.params().items()}
         out['container.eta'] = out['container.eta'][0]
         if self.pose is not None:
-            M = self.pose.matrix()
-            out['container.scale'] = np.linalg.norm(M[:3, :3], axis=0).round(6).tolist()
+            out['container.scale'] = np.exp(out['container.log_scale']).round(6).tolist()
         if self.light is not None:
             out['light.mean'] = self.light.mean().round(6).tolist()
         return out

@@ -209,8 +209,6 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
             raise ReneusError(f"{name}={value!r}: expected a positive integer")
     if not margin >= 0:
         raise ReneusError(f"margin={margin!r}: expected a number >= 0")
-    if container not in CONTAINERS:
-        raise ReneusError(f"container={container!r}: expected one of {', '.join(CONTAINERS)}")
     if not 1.0 < ior <= 3.0:
         raise ReneusError(f"ior={ior!r}: expected a number in (1, 3]")
     if not ambient > 0:

@@ -89,14 +89,16 @@ class StepStats:
     seconds: float
 
 
-def refined_names(cfg: TrainConfig) -> list[str]:
-    """The integrator's parameters (besides the field's) that a run refines."""
-    names = ['container.eta'] if cfg.refine_ior else []
+def refined_rates(cfg: TrainConfig) -> dict[str, float]:
+    """The integrator's parameters (besides the field's) that a run refines, with their peak
+    learning rates."""
+    rates = {'container.eta': cfg.ior_learning_rate} if cfg.refine_ior else {}
     if cfg.refine_pose:
-        names += ['container.translation', 'container.rotation', 'container.log_scale']
+        rates.update(dict.fromkeys(('container.translation', 'container.rotation', 'container.log_scale'),
+                                   cfg.pose_learning_rate))
     if cfg.refine_light != 'none':
-        names.append('light.radiance' if cfg.refine_light == 'ambient' else 'light.sh')
-    return names
+        rates['light.radiance' if cfg.refine_light == 'ambient' else 'light.sh'] = cfg.light_learning_rate
+    return rates
 
 
 def trainable_parameters(scene: mi.Scene, cfg: TrainConfig | None = None) -> mi.SceneParameters:
@@ -107,7 +109,7 @@ def trainable_parameters(scene: mi.Scene, cfg: TrainConfig | None = None) -> mi.
     params = mi.traverse(scene)
     named = integrator.params()
     own = [id(v) for v in integrator.field.params().values()]
-    own += [id(named[n]) for n in (refined_names(cfg) if cfg else [])]
+    own += [id(named[n]) for n in (refined_rates(cfg) if cfg else {})]
     # The raw entries: reading through params[k] would mark every key for update.
     params.keep([k for k, (value, *_) in params.properties.items() if id(value) in own])
     return params
@@ -152,10 +154,7 @@ class Trainer:
         self.params.update(self.opt)
         # Learning rates relative to the field's peak: the field's groups scale it, the
         # surroundings have their own (they follow the same schedule).
-        own = {'container.eta': cfg.ior_learning_rate, 'light.radiance': cfg.light_learning_rate,
-               'light.sh': cfg.light_learning_rate}
-        own.update({n: cfg.pose_learning_rate for n in refined_names(cfg) if n.startswith('container.')
-                    and n != 'container.eta'})
+        own = refined_rates(cfg)
         self._lr_scale = {key: own[name] / cfg.learning_rate if name in own
                           else self.field.lr_scale().get(name, 1.0)
                           for key, name in ((k, self._name(k)) for k in self.opt.keys())}
