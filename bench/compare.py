@@ -106,7 +106,7 @@ def reconstruction_config(cfg: dict, model: dict | None = None, **train):
 # ------------------------------------------------------------------ running
 def dataset(obj: str, out: str, cfg: dict) -> str:
     """The folder of ``obj``'s dataset (both subsets), rendered once."""
-    from reneus_mi.synth import make_dataset
+    from reneus_mi.data.synth import make_dataset
     folder = os.path.join(out, obj, 'data')
     meta = os.path.join(folder, 'synth.json')
     want = cfg['data']
@@ -127,15 +127,15 @@ def run_method(obj: str, key: str, out: str, cfg: dict, *, model_extra: dict | N
                run_name: str | None = None, progress: bool = False) -> dict:
     """Fit one method on one object (or reuse its run) and evaluate it; returns result.json's dict."""
     import reneus_mi  # noqa: F401  (variant, plugins)
-    from reneus_mi import runs
+    from reneus_mi.train import runs
     from reneus_mi.config import to_dict
     from reneus_mi.data import load_dataset
-    from reneus_mi.data.container import load_container
+    from reneus_mi.geometry.container import load_container
     from reneus_mi.evaluate import chamfer, load_mesh
     from reneus_mi.extract import write_mesh
     from reneus_mi.io import atomic_write_text
-    from reneus_mi.mesh import postprocess
-    from reneus_mi.scene import write_scene
+    from reneus_mi.geometry.surface import postprocess
+    from reneus_mi.data.scene_xml import write_scene
 
     _, label, subset, settings, trans_weight = METHODS[METHOD_KEYS.index(key)]
     out = os.path.abspath(out)

@@ -14,7 +14,7 @@ wrong value held fixed (the paper's method) and refining it
 Chamfer-L1 x100 of each mesh (largest component) and the refined value
 against the truth. Writes the section ``refine`` of ``DOC/comparison.md``.
 Runs live in ``OUT/<object>/<quantity>_<variant>/`` and are resumed or reused
-(:func:`reneus_mi.runs.run_many`).
+(:func:`reneus_mi.train.runs.run_many`).
 """
 from __future__ import annotations
 
@@ -39,8 +39,8 @@ def specs(obj: str, data: str, out: str, quantities, iterations: int) -> dict:
     from reneus_mi.config import replace
     from reneus_mi.data import load_dataset
     from reneus_mi.optimize import spec_of_scene
-    from reneus_mi.scene import write_scene
-    from reneus_mi.synth import miscalibrated
+    from reneus_mi.data.scene_xml import write_scene
+    from reneus_mi.data.synth import miscalibrated
     train = {'train.iterations': iterations, 'train.batch_rays': 512, 'train.validate_every': 0,
              'train.checkpoint_every': 100, 'train.mesh_resolution': 128, 'train.log_every': 50}
     truth = load_dataset(data)
@@ -103,8 +103,8 @@ def main(argv=None) -> int:
     import mitsuba as mi
     from reneus_mi.evaluate import chamfer, load_mesh
     from reneus_mi.io import write_section
-    from reneus_mi.runs import run_many
-    from reneus_mi.synth import make_dataset
+    from reneus_mi.train.runs import run_many
+    from reneus_mi.data.synth import make_dataset
     out = os.path.abspath(args.out)
     start = time.perf_counter()
     rows = []

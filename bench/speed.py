@@ -44,7 +44,7 @@ def device() -> str:
 
 
 def dataset(args) -> str:
-    from reneus_mi.synth import make_dataset
+    from reneus_mi.data.synth import make_dataset
     folder = os.path.join(args.out, 'data')
     if not os.path.isfile(os.path.join(folder, 'box', 'transforms.json')):
         print(f'rendering {args.object}, {args.views} views at {args.res} px into {folder}', flush=True)
@@ -57,13 +57,13 @@ def child(args) -> None:
     import drjit as dr
 
     import reneus_mi  # noqa: F401
-    from reneus_mi import runs
+    from reneus_mi.train import runs
     from reneus_mi.config import replace
     from reneus_mi.data import load_dataset
     from reneus_mi.evaluate import chamfer, load_mesh
-    from reneus_mi.mesh import postprocess
+    from reneus_mi.geometry.surface import postprocess
     from reneus_mi.optimize import spec_of_scene
-    from reneus_mi.scene import write_scene
+    from reneus_mi.data.scene_xml import write_scene
 
     data = dataset(args)
     xml = os.path.join(args.out, f'scene_{args.one}.xml')

@@ -6,7 +6,7 @@ For each preset (reneus_mi.presets) and batch size, a fresh process builds the
 scene of the embedded demo dataset (the statuette in its glass block, 16 views
 at 32x32, rendered once into ``--data``), runs ``--warmup`` steps (they
 compile the kernels; timed apart) and then ``--steps`` timed steps of
-``reneus_mi.trainer.Trainer.step`` (random batch, trace, loss, backward, Adam;
+``reneus_mi.train.trainer.Trainer.step`` (random batch, trace, loss, backward, Adam;
 each ends with ``dr.sync_thread``). It prints iterations and camera rays per
 second and the child's peak resident memory (``ru_maxrss``).
 
@@ -33,11 +33,11 @@ def child(args) -> None:
     import mitsuba as mi
 
     import reneus_mi  # noqa: F401
-    from reneus_mi import runs
+    from reneus_mi.train import runs
     from reneus_mi.config import replace
     from reneus_mi.data import load_dataset
     from reneus_mi.optimize import make_demo, spec_of_scene
-    from reneus_mi.scene import write_scene
+    from reneus_mi.data.scene_xml import write_scene
 
     scene_path = make_demo(args.data)
     xml = os.path.join(args.data, f'scene_bench_{args.one}.xml')

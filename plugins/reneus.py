@@ -11,13 +11,13 @@ import mitsuba as mi
 from reneus_mi.config import ModelConfig, RenderConfig, field_config_class, typed_value
 from reneus_mi.errors import ReneusError
 from reneus_mi.fields import FIELD_CONFIGS, Field, load_field
-from reneus_mi.frame import FieldFrame
-from reneus_mi.optics import interface
-from reneus_mi.pixel_sampler import opaque_seed
+from reneus_mi.render.frame import FieldFrame
+from reneus_mi.render.optics import interface
+from reneus_mi.train.pixel_sampler import opaque_seed
 from reneus_mi.presets import preset
-from reneus_mi.ray_samplers import SamplerConfig
-from reneus_mi.surroundings import Surroundings
-from reneus_mi.volume_rendering import volume_render
+from reneus_mi.render.ray_samplers import SamplerConfig
+from reneus_mi.render.surroundings import Surroundings
+from reneus_mi.render.volume_rendering import volume_render
 
 VARIANT = mi.variant()
 
@@ -110,11 +110,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
        - |string|, |bool|
        - The light outside: the scene's ``emitter``, or a refinable
          ``ambient`` RGB or ``sh`` (order 2) started from it; a refinable pose
-         and per-axis scale of the container (:mod:`reneus_mi.surroundings`).
+         and per-axis scale of the container (:mod:`reneus_mi.render.surroundings`).
      * - n_coarse, n_fine, n_upsample_steps, upsample_s, occupancy_*
        - |int|, |int|, |int|, |float|, ...
        - Samples per inside segment and the occupancy grid that skips empty space
-         (:class:`~reneus_mi.ray_samplers.SamplerConfig`).
+         (:class:`~reneus_mi.render.ray_samplers.SamplerConfig`).
      * - field
        - |string|
        - The field's kind (``neus``, ``sphere``, ``box``, ``torus``, ...) or the
@@ -140,7 +140,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     ``mi.traverse`` shows the trained values. Once the integrator has seen its
     scene (:meth:`bind`, or a first render) the container's IOR
     ``container.eta``, its pose (``container_pose``) and the light (``light``
-    other than ``emitter``) appear beside them (:mod:`reneus_mi.surroundings`).
+    other than ``emitter``) appear beside them (:mod:`reneus_mi.render.surroundings`).
     """
 
     def __init__(self, props: mi.Properties):

@@ -5,7 +5,7 @@ A :class:`ReconstructionConfig` is what a run is made of::
     ReconstructionConfig
     ├── model: ModelConfig          what is rendered (the scene's <integrator type="reneus">)
     │   ├── field: NeuSFieldConfig | HashGridFieldConfig | SphereFieldConfig | ...
-    │   ├── sampler: SamplerConfig  samples per inside segment (reneus_mi.ray_samplers)
+    │   ├── sampler: SamplerConfig  samples per inside segment (reneus_mi.render.ray_samplers)
     │   └── render: RenderConfig    mode, D_re, terminal, gamma
     └── train: TrainConfig          how it is fitted (reneus_mi.optimize)
 
@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
 from reneus_mi.fields import FIELD_CONFIGS, FieldConfig, NeuSFieldConfig
-from reneus_mi.ray_samplers import SamplerConfig
-from reneus_mi.surroundings import LIGHTS
+from reneus_mi.render.ray_samplers import SamplerConfig
+from reneus_mi.render.surroundings import LIGHTS
 
 MODES = ('reneus', 'neus', 'neus_plus')
 TERMINALS = ('ambient', 'black')

@@ -15,9 +15,9 @@ import drjit as dr
 
 from reneus_mi import guards
 from reneus_mi.errors import ReneusError, exit_on_error
-from reneus_mi.frame import FieldFrame
+from reneus_mi.render.frame import FieldFrame
 from reneus_mi.io import atomic_export
-from reneus_mi.mesh import MESH_EXTENSIONS, POSTPROCESS_MODES, extract_mesh, postprocess
+from reneus_mi.geometry.surface import MESH_EXTENSIONS, POSTPROCESS_MODES, extract_mesh, postprocess
 
 
 def field_mesh(field, frame: FieldFrame, resolution: int, mode: str, container: str | None = None):
@@ -31,7 +31,7 @@ def field_mesh(field, frame: FieldFrame, resolution: int, mode: str, container: 
     with dr.suspend_grad():
         mesh = extract_mesh(field, lo, hi, resolution, to_world=frame.to_world_matrix())
     if mode == 'crop':
-        from reneus_mi.data.container import load_container
+        from reneus_mi.geometry.container import load_container
         if not container:
             raise ReneusError("postprocess 'crop' needs the container mesh, and none is recorded")
         return postprocess(mesh, mode, load_container(container))
@@ -60,7 +60,7 @@ def check_resolution(resolution: int, what: str = '--resolution') -> None:
 
 def main(argv=None) -> int:
     import reneus_mi  # noqa: F401  (variant)
-    from reneus_mi import checkpoint
+    from reneus_mi.train import checkpoint
     from reneus_mi.fields import load_field
 
     parser = argparse.ArgumentParser(prog='python -m reneus_mi.extract', description=__doc__.splitlines()[0])

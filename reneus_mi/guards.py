@@ -128,7 +128,7 @@ def check_output_dir(path: str | os.PathLike, *, inputs=(), allow: tuple[str, ..
     return real
 
 
-#: Names a run folder holds (see :mod:`reneus_mi.trainer`); ``data`` is the demo's dataset.
+#: Names a run folder holds (see :mod:`reneus_mi.train.trainer`); ``data`` is the demo's dataset.
 RUN_FILES = ('config.json', 'log.jsonl', 'checkpoint.npz', 'mesh.ply', 'images', 'meshes', 'data',
              '.lock')
 

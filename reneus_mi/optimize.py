@@ -7,7 +7,7 @@ settings that override it: mode, D_re, samples, field); the integrator's
 overrides it; ``python -m reneus_mi.scene DATA -o scene.xml --preset cpu``
 writes such a scene). Training settings start from the same preset; the
 options below override them. Results go to the output folder (see
-:mod:`reneus_mi.trainer`); ``--resume`` continues a killed run from its
+:mod:`reneus_mi.train.trainer`); ``--resume`` continues a killed run from its
 ``config.json``. ``--demo`` reconstructs the embedded demo: a small dataset of
 an insect (thin legs) in a glass block that it first renders with Mitsuba's path tracer.
 """
@@ -30,8 +30,8 @@ DEMO_PRESET = 'demo'
 def make_demo(folder: str, *, mode: str = 'reneus') -> str:
     """Render the demo dataset into ``folder`` (once) and return its scene XML."""
     from reneus_mi.data import load_dataset
-    from reneus_mi.scene import write_scene
-    from reneus_mi.synth import make_dataset
+    from reneus_mi.data.scene_xml import write_scene
+    from reneus_mi.data.synth import make_dataset
     data = os.path.join(folder, 'box')
     if not os.path.isfile(os.path.join(data, 'transforms.json')):
         print(f'rendering the demo dataset ({DEMO_OBJECT}, {DEMO_DATA["views"]} views) into {folder}')
@@ -46,8 +46,8 @@ def spec_of_scene(scene_path: str, data: str | None):
     import reneus_mi  # noqa: F401  (variant, plugins)
     from reneus_mi.config import ReconstructionConfig
     from reneus_mi.presets import preset
-    from reneus_mi.render import load_scene
-    from reneus_mi.runs import RunSpec
+    from reneus_mi.render.loading import load_scene
+    from reneus_mi.train.runs import RunSpec
     integrator = load_scene(scene_path).integrator()
     if not hasattr(integrator, 'render_rays'):
         raise ReneusError(f'{scene_path}: the integrator is {type(integrator).__name__}; '
@@ -84,7 +84,8 @@ def main(argv=None) -> int:
 
 
 def run(args) -> str:
-    from reneus_mi import guards, runs
+    from reneus_mi import guards
+    from reneus_mi.train import runs
     from reneus_mi.config import replace
     if args.scene is None and not args.demo and not args.resume:
         raise ReneusError('no scene given: pass a scene XML (python -m reneus_mi.scene DATA -o '

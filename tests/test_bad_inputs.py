@@ -634,7 +634,7 @@ def test_interrupted_step_leaves_the_batch_stream_alone(world, tmp_path):
 
 
 def test_validation_without_surface_goes_on(world, tmp_path, monkeypatch):
-    from reneus_mi.mesh import NoSurfaceError
+    from reneus_mi.geometry.surface import NoSurfaceError
     from test_checkpoint import new_trainer
     trainer = new_trainer(world['scene'], tmp_path / 'out')
 
@@ -683,7 +683,7 @@ def test_optimize_help_states_each_default_once(capsys):
 
 
 def test_final_mesh_without_surface_says_the_run_can_go_on(world, tmp_path, monkeypatch):
-    from reneus_mi.mesh import NoSurfaceError
+    from reneus_mi.geometry.surface import NoSurfaceError
     from test_checkpoint import new_trainer
     trainer = new_trainer(world['scene'], tmp_path / 'out')
     trainer.iteration = trainer.cfg.iterations          # nothing left to train

@@ -28,10 +28,10 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from reneus_mi import checkpoint, runs
+from reneus_mi.train import checkpoint, runs
 from reneus_mi.config import replace
 from reneus_mi.optimize import spec_of_scene
-from reneus_mi.trainer import Trainer, TrainingError
+from reneus_mi.train.trainer import Trainer, TrainingError
 
 PARAM_ATOL = 1e-5
 MOMENT_RTOL = 1e-3
@@ -40,8 +40,8 @@ MOMENT_RTOL = 1e-3
 def tiny_dataset(root) -> str:
     """Render (once per pytest session folder) the tiny dataset; return its scene XML."""
     from reneus_mi.data import load_dataset
-    from reneus_mi.scene import write_scene
-    from reneus_mi.synth import make_dataset
+    from reneus_mi.data.scene_xml import write_scene
+    from reneus_mi.data.synth import make_dataset
     root = str(root)
     data = os.path.join(root, 'box')
     if not os.path.isfile(os.path.join(data, 'transforms.json')):
@@ -248,7 +248,7 @@ def poison_run(scene_xml, out, where: str, at: int = 3, monkeypatch=None) -> Tra
     colour loss itself; needs ``monkeypatch``). The NaN enters as an opaque
     factor, so the kernels do not change when it does.
     """
-    from reneus_mi import losses
+    from reneus_mi.train import losses
     trainer = new_trainer(scene_xml, out, iterations=6, checkpoint_every=1)
     poison = {'factor': dr.opaque(mi.Float, 1.0)}
     field = trainer.field
@@ -304,7 +304,7 @@ def test_nan_geometry_stops_with_training_error(scene_xml, tmp_path):
     code = (
         'import sys; sys.path.insert(0, sys.argv[1]); import conftest\n'
         'from test_checkpoint import poison_run\n'
-        'from reneus_mi.trainer import TrainingError\n'
+        'from reneus_mi.train.trainer import TrainingError\n'
         'try:\n'
         '    poison_run(sys.argv[2], sys.argv[3], "geometry").run(progress=False)\n'
         'except TrainingError as e:\n'

@@ -16,7 +16,7 @@ import pytest
 
 import reneus_mi  # noqa: F401  (sets the variant)
 from reneus_mi.fields import FIELD_KINDS, HashGridField, load_field
-from reneus_mi.ray_samplers import neus_alpha
+from reneus_mi.render.ray_samplers import neus_alpha
 
 TINY = dict(n_levels=4, features_per_level=2, log2_hashmap_size=12, base_resolution=4,
             finest_resolution=32, hidden=16, n_features=4, color_hidden=16, color_layers=1,

@@ -7,9 +7,9 @@ import drjit as dr
 import mitsuba as mi
 
 from reneus_mi.fields import BoxField, Field, SphereField, TorusField
-from reneus_mi.occupancy import OccupancyGrid
-from reneus_mi.ray_samplers import SamplerConfig
-from reneus_mi.volume_rendering import volume_render
+from reneus_mi.render.occupancy import OccupancyGrid
+from reneus_mi.render.ray_samplers import SamplerConfig
+from reneus_mi.render.volume_rendering import volume_render
 
 FIELDS = {
     'sphere': lambda s: SphereField(radius=0.3, inv_s=s, center=(0.2, 0.1, -0.1)),

@@ -1,11 +1,11 @@
-"""Fresnel, reflection, refraction and TIR at known angles (reneus_mi.optics)."""
+"""Fresnel, reflection, refraction and TIR at known angles (reneus_mi.render.optics)."""
 import math
 
 import mitsuba as mi
 import numpy as np
 import pytest
 
-from reneus_mi.optics import interface
+from reneus_mi.render.optics import interface
 
 ETA = 1.45
 N = mi.Vector3f(0, 0, 1)  # outward normal of the container

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from reneus_mi import checkpoint, extract, optimize
+from reneus_mi import extract, optimize
+from reneus_mi.train import checkpoint
 from test_checkpoint import assert_same_state, file_state, tiny_dataset
 
 ITERATIONS = 8
@@ -248,7 +249,7 @@ def test_cli_error_has_no_traceback(scene_xml, tmp_path):
 def write_checkpoint(path, field, center, scale, half=0.6):
     """A checkpoint of ``field`` whose container box is ``center`` ± ``scale * half``."""
     import mitsuba as mi
-    from reneus_mi.frame import FieldFrame
+    from reneus_mi.render.frame import FieldFrame
     c = np.asarray(center, float)
     opt = mi.ad.Adam(lr=1e-3, params=field.params())
     frame = FieldFrame(center=tuple(c), scale=scale, bounds=(tuple(c - scale * half), tuple(c + scale * half)))

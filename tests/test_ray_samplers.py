@@ -6,7 +6,7 @@ import drjit as dr
 import mitsuba as mi
 
 from reneus_mi.fields import SphereField
-from reneus_mi.ray_samplers import (SamplerConfig, composite, importance_samples, merge_ranks, merge_sorted,
+from reneus_mi.render.ray_samplers import (SamplerConfig, composite, importance_samples, merge_ranks, merge_sorted,
                                     neus_alpha, stratified_samples)
 
 

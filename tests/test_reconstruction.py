@@ -10,13 +10,13 @@ by Chamfer-L1 x100 (the paper's metric and post-processing).
 
 import pytest
 
-from reneus_mi import runs
+from reneus_mi.train import runs
 from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
 from reneus_mi.evaluate import chamfer, load_mesh
 from reneus_mi.optimize import spec_of_scene
-from reneus_mi.scene import write_scene
-from reneus_mi.synth import make_dataset
+from reneus_mi.data.scene_xml import write_scene
+from reneus_mi.data.synth import make_dataset
 
 ITERATIONS = 200
 

@@ -17,17 +17,17 @@ import pytest
 import trimesh
 
 from reference import AMBIENT, path_reference, path_scene, pixel_rays, reneus_pixels, reneus_scene
-from reneus_mi import runs
+from reneus_mi.train import runs
 from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
 from reneus_mi.errors import ReneusError
 from reneus_mi.evaluate import chamfer, load_mesh
-from reneus_mi.objects import container_mesh
+from reneus_mi.data.objects import container_mesh
 from reneus_mi.optimize import spec_of_scene
-from reneus_mi.scene import write_scene
-from reneus_mi.silhouette import SilhouetteLoss
-from reneus_mi.surroundings import ContainerPose, Light, fibonacci_directions, sh_basis
-from reneus_mi.synth import make_dataset, miscalibrated, write_container
+from reneus_mi.data.scene_xml import write_scene
+from reneus_mi.train.silhouette import SilhouetteLoss
+from reneus_mi.render.surroundings import ContainerPose, Light, fibonacci_directions, sh_basis
+from reneus_mi.data.synth import make_dataset, miscalibrated, write_container
 
 
 def _constant(value=AMBIENT):

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from reneus_mi.data import Dataset, write_dataset
-from reneus_mi.data.container import container_masks
+from reneus_mi.geometry.container import container_masks
 from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.scene import main, sensor_dict, write_scene
 
@@ -139,7 +139,7 @@ def test_cli(tmp_path, capsys):
 
 def test_container_parts_apart_or_hollow_pass_overlapping_fail():
     import trimesh
-    from reneus_mi.render import _check_disjoint
+    from reneus_mi.render.loading import _check_disjoint
     outer = trimesh.creation.box(extents=(2, 2, 2))
     apart = trimesh.creation.box().apply_translation((5, 0, 0))
     cavity = trimesh.creation.box()

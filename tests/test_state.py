@@ -14,11 +14,11 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from reneus_mi import runs
+from reneus_mi.train import runs
 from reneus_mi.config import replace
 from reneus_mi.errors import user_message
 from reneus_mi.presets import PRESETS
-from reneus_mi.trainer import next_batch
+from reneus_mi.train.trainer import next_batch
 from test_checkpoint import new_trainer, tiny_dataset, tiny_spec
 
 
@@ -157,7 +157,7 @@ def test_training_steps_reuse_their_kernels(scene_xml, tmp_path, budget):
     """Per-step values (seeds, annealing, learning rate, open levels, the batch size under a
     sample budget) reach the kernels as data: a literal would compile new kernels every step
     (it once filled ~/.drjit with 97,000 files and slowed steps 7x)."""
-    from reneus_mi.scene import write_scene
+    from reneus_mi.data.scene_xml import write_scene
     from reneus_mi.data import load_dataset
     from reneus_mi.optimize import spec_of_scene
     xml = str(tmp_path / 'fast.xml')

@@ -9,8 +9,8 @@ import trimesh
 from scipy.ndimage import binary_dilation
 
 import reneus_mi  # noqa: F401  (sets the variant)
-from reneus_mi import objects, synth
-from reneus_mi.data.container import container_masks
+from reneus_mi.data import objects, synth
+from reneus_mi.geometry.container import container_masks
 
 BACKGROUND = synth.ENVIRONMENT ** (1.0 / synth.GAMMA)
 

@@ -7,8 +7,8 @@ import drjit as dr
 import mitsuba as mi
 
 from reneus_mi.fields import Field, SphereField
-from reneus_mi.ray_samplers import SamplerConfig
-from reneus_mi.volume_rendering import volume_render
+from reneus_mi.render.ray_samplers import SamplerConfig
+from reneus_mi.render.volume_rendering import volume_render
 
 COLOR = (0.2, 0.5, 0.8)
 

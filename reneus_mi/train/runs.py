@@ -96,8 +96,8 @@ def make_trainer(spec: RunSpec, out: str):
     """The scene, dataset and trainer of ``spec``; the integrator renders ``spec.config.model``."""
     import reneus_mi  # noqa: F401  (variant, plugins)
     from reneus_mi.data import load_dataset
-    from reneus_mi.render import load_scene
-    from reneus_mi.trainer import Trainer
+    from reneus_mi.render.loading import load_scene
+    from reneus_mi.train.trainer import Trainer
     scene = load_scene(spec.scene)
     integrator = scene.integrator()
     if not hasattr(integrator, 'render_rays'):
@@ -105,7 +105,7 @@ def make_trainer(spec: RunSpec, out: str):
                           'expected <integrator type="reneus">')
     integrator.configure(with_refinement(spec.config).model)
     train = spec.config.train
-    from reneus_mi.trainer import BUDGET_RANGE
+    from reneus_mi.train.trainer import BUDGET_RANGE
     guards.check_batch(train.batch_rays * (BUDGET_RANGE if train.sample_budget else 1), spec.config.model,
                        '--batch-rays' + (' (x8: the largest batch under --sample-budget)' if train.sample_budget else ''))
     dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus')
@@ -136,7 +136,7 @@ def with_refinement(config: ReconstructionConfig) -> ReconstructionConfig:
 
 def run(spec: RunSpec, out: str, *, resume: bool = False, progress: bool = True) -> dict:
     """Train ``spec`` in folder ``out`` (continuing its checkpoint with ``resume``); return the result."""
-    from reneus_mi.trainer import TrainingError
+    from reneus_mi.train.trainer import TrainingError
     guards.check_run_dir(out, inputs=[spec.scene, spec.data], resume=resume)
     trainer = make_trainer(spec, out)
     os.makedirs(out, exist_ok=True)

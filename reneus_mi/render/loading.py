@@ -19,7 +19,7 @@ import mitsuba as mi
 from reneus_mi import guards
 from reneus_mi.errors import ReneusError, exit_on_error, user_message
 from reneus_mi.io import atomic_path
-from reneus_mi.mesh import check_container
+from reneus_mi.geometry.surface import check_container
 
 #: Image files :func:`write_image` writes.
 IMAGE_EXTENSIONS = ('.exr', '.png')
@@ -70,7 +70,7 @@ def _check_disjoint(parts, where: str) -> None:
     """Container parts may sit apart or one inside another as its cavity (inward
     normals: a hollow vessel), never cut through each other or nest glass in glass,
     where a ray would enter glass it is already in."""
-    from reneus_mi.mesh import inside, signed_volume
+    from reneus_mi.geometry.surface import inside, signed_volume
     for i, a in enumerate(parts):
         for b in parts[i + 1:]:
             if not (np.all(a.bounds[0] <= b.bounds[1]) and np.all(b.bounds[0] <= a.bounds[1])):

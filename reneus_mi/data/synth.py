@@ -37,11 +37,11 @@ from tqdm import tqdm
 from reneus_mi import guards
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
-from reneus_mi.data.container import container_masks
+from reneus_mi.geometry.container import container_masks
 from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.io import atomic_export, atomic_path, atomic_write_text
-from reneus_mi.objects import CONTAINERS, OBJECTS, load_object, normalize
-from reneus_mi.scene import sensor_dict, write_scene
+from reneus_mi.data.objects import CONTAINERS, OBJECTS, load_object, normalize
+from reneus_mi.data.scene_xml import sensor_dict, write_scene
 
 #: Index of refraction of the glass box.
 IOR = 1.45
@@ -186,9 +186,9 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
                  ambient: float = ENVIRONMENT, write: bool = True) -> dict:
     """Render a synthetic dataset of ``obj`` into ``out_dir``.
 
-    ``obj`` is a name of :data:`reneus_mi.objects.OBJECTS`, a mesh file or a
+    ``obj`` is a name of :data:`reneus_mi.data.objects.OBJECTS`, a mesh file or a
     :class:`trimesh.Trimesh` with vertex colours; it is centred and scaled with
-    its container by :func:`reneus_mi.objects.normalize` (``margin``,
+    its container by :func:`reneus_mi.data.objects.normalize` (``margin``,
     ``container``: ``box``, ``rounded`` or ``cylinder``). The glass has IOR
     ``ior``, the environment radiance ``ambient``. ``seed`` fixes
     the cameras and the sample streams. ``gt.ply``, ``box.ply`` and

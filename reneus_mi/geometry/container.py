@@ -14,7 +14,7 @@ import numpy as np
 
 from reneus_mi.data.cameras import pixel_rays
 from reneus_mi.errors import ReneusError
-from reneus_mi.mesh import load_container
+from reneus_mi.geometry.surface import load_container
 
 #: Mesh formats that both trimesh and Mitsuba read.
 MESH_EXTENSIONS = ('.ply', '.obj')

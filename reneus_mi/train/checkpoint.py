@@ -16,7 +16,7 @@ import numpy as np
 
 from reneus_mi.errors import ReneusError
 from reneus_mi.fields import Field
-from reneus_mi.frame import FieldFrame
+from reneus_mi.render.frame import FieldFrame
 from reneus_mi.io import atomic_savez
 
 

@@ -12,7 +12,7 @@ turns them into linear albedo. The catalogue (:data:`OBJECTS`):
 - ``sphere``: a patterned sphere, for tests.
 
 Shapes built from blended primitives are signed distance functions written in
-Dr.Jit and meshed with :func:`reneus_mi.mesh.extract_mesh` (Marching Cubes), so
+Dr.Jit and meshed with :func:`reneus_mi.geometry.surface.extract_mesh` (Marching Cubes), so
 that overlapping parts become one clean, watertight surface.
 
 :func:`normalize` centres an object, fits the glass box around it with a margin
@@ -30,7 +30,7 @@ import trimesh
 
 from reneus_mi.errors import ReneusError
 from reneus_mi.fields.base import Field
-from reneus_mi.mesh import extract_mesh, load_mesh
+from reneus_mi.geometry.surface import extract_mesh, load_mesh
 
 
 # ----------------------------------------------------------------- SDF parts

@@ -1,13 +1,13 @@
 """Fitting the ``reneus`` integrator's field to posed photographs (Sec. 3.4).
 
 Each step draws ``batch_rays`` pixels at random among the container-mask
-pixels of all views (:class:`~reneus_mi.pixel_sampler.PixelSampler`; under a
+pixels of all views (:class:`~reneus_mi.train.pixel_sampler.PixelSampler`; under a
 ``sample_budget`` the batch follows the samples per ray), renders them with
 :meth:`ReNeuSIntegrator.render_rays` (what ``mi.render`` runs too), and takes
 one ``mi.ad.Adam`` step on L = L_color + λ1 L_trans + λ2 L_reg (+ the
 container's silhouette term while its pose is refined). The parameters are
 ``mi.traverse(scene)``'s view of the field's own arrays, and of the IOR, pose
-and light a run refines (:mod:`reneus_mi.surroundings`), updated with
+and light a run refines (:mod:`reneus_mi.render.surroundings`), updated with
 ``params.update(opt)``, as in a hand-written Mitsuba optimisation loop.
 The run lives in one output folder::
 
@@ -37,15 +37,16 @@ import numpy as np
 import trimesh
 from drjit.opt import GradScaler
 
-from reneus_mi import checkpoint, guards, losses
+from reneus_mi import guards
+from reneus_mi.train import checkpoint, losses
 from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
 from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.extract import field_mesh, write_mesh
 from reneus_mi.fields import load_field
-from reneus_mi.frame import FieldFrame
-from reneus_mi.pixel_sampler import JITTER, PixelSampler, step_seed
-from reneus_mi.render import write_image
+from reneus_mi.render.frame import FieldFrame
+from reneus_mi.train.pixel_sampler import JITTER, PixelSampler, step_seed
+from reneus_mi.render.loading import write_image
 from reneus_mi.variant import is_cuda
 
 #: Rays per kernel launch when rendering a whole view.
@@ -139,7 +140,7 @@ class Trainer:
                               'segmented from the photographs: they cannot correct its pose, which '
                               'then follows the refraction alone (weak for flat glass)')
             else:
-                from reneus_mi.silhouette import SilhouetteLoss
+                from reneus_mi.train.silhouette import SilhouetteLoss
                 self.silhouette = SilhouetteLoss(dataset, self.surroundings.mesh())
         self.iteration = 0
         self.best_loss = float('inf')

@@ -26,7 +26,7 @@ import numpy as np
 from reneus_mi import guards
 from reneus_mi.data import Dataset, load_dataset
 from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
-from reneus_mi.data.container import mesh_type
+from reneus_mi.geometry.container import mesh_type
 from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.io import atomic_open
 

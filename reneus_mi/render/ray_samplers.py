@@ -10,7 +10,7 @@ samples, then a few rounds that add samples by inverse-CDF sampling of the NeuS
 weights computed with a fixed, growing sharpness, so that the samples gather
 around the zero level set before the learned sharpness s is sharp enough to find
 it. Sampling is not differentiated: gradients reach the field through the
-rendered values at these positions (:mod:`reneus_mi.volume_rendering`), never
+rendered values at these positions (:mod:`reneus_mi.render.volume_rendering`), never
 through the positions themselves.
 
 Unlike NeuS, the sample set of a segment also holds ``t_near`` and ``t_far``, so
@@ -22,7 +22,7 @@ The sampler is a configured object, as nerfstudio's ray samplers:
 :class:`SamplerConfig` holds the settings (each default written here only),
 ``SamplerConfig(...).setup()`` builds the :class:`NeuSSampler` that the
 integrator owns. With ``occupancy_resolution > 0`` it keeps an
-:class:`reneus_mi.occupancy.OccupancyGrid` of the field: segments are clipped to
+:class:`reneus_mi.render.occupancy.OccupancyGrid` of the field: segments are clipped to
 the cells where the surface can be, and segments that cross none are skipped.
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ import drjit as dr
 import mitsuba as mi
 
 from reneus_mi.errors import ReneusError, check_numbers
-from reneus_mi.occupancy import OccupancyGrid
+from reneus_mi.render.occupancy import OccupancyGrid
 
 #: Added to Φ_s in the α ratio, as in NeuS: it keeps α finite where Φ_s(prev) → 0.
 ALPHA_EPS = 1e-5

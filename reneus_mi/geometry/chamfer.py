@@ -32,7 +32,7 @@ import trimesh
 from reneus_mi import guards
 from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.io import atomic_write_text
-from reneus_mi.mesh import POSTPROCESS_MODES, inside, load_container, load_mesh, postprocess
+from reneus_mi.geometry.surface import POSTPROCESS_MODES, inside, load_container, load_mesh, postprocess
 
 #: The paper's minimum number of sample points.
 MIN_POINTS = 10000

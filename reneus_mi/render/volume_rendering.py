@@ -3,7 +3,7 @@
 The integrator traces camera rays through the glass and hands every segment that
 lies inside the container to :func:`volume_render`, in the field's frame. The
 segment is sampled hierarchically by the integrator's sampler
-(:mod:`reneus_mi.ray_samplers`), after its occupancy grid, if it has one, has
+(:mod:`reneus_mi.render.ray_samplers`), after its occupancy grid, if it has one, has
 clipped the segment to where the surface can be; the samples and
 the segment's ends bound S - 1 sections that tile [t_near, t_far]. Each section
 is evaluated once, at its midpoint: SDF g, gradient ∇g, feature and radiance c.
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.ray_samplers import NeuSSampler, composite, neus_alpha, segment_layout
+from reneus_mi.render.ray_samplers import NeuSSampler, composite, neus_alpha, segment_layout
 
 
 @dataclass

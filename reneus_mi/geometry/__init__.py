@@ -1,0 +1,1 @@
+"""Geometry: meshes from fields, the container, and the Chamfer distance."""

@@ -1,0 +1,1 @@
+"""Rendering through the container: what the ``reneus`` integrator (plugins/reneus.py) uses."""
