@@ -131,8 +131,9 @@ def run_method(obj: str, key: str, out: str, cfg: dict, *, model_extra: dict | N
     from reneus_mi.config import to_dict
     from reneus_mi.data import load_dataset
     from reneus_mi.geometry.container import load_container
-    from reneus_mi.evaluate import chamfer, load_mesh
-    from reneus_mi.extract import write_mesh
+    from reneus_mi.geometry.chamfer import chamfer
+    from reneus_mi.geometry.mesh import load_mesh
+    from reneus_mi.geometry.mesh import write_mesh
     from reneus_mi.io import atomic_write_text
     from reneus_mi.geometry.surface import postprocess
     from reneus_mi.data.scene_xml import write_scene

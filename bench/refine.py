@@ -38,7 +38,7 @@ def specs(obj: str, data: str, out: str, quantities, iterations: int) -> dict:
     """The runs of one object: the truth, and per quantity the wrong value fixed and refined."""
     from reneus_mi.config import replace
     from reneus_mi.data import load_dataset
-    from reneus_mi.optimize import spec_of_scene
+    from reneus_mi.train.runs import spec_of_scene
     from reneus_mi.data.scene_xml import write_scene
     from reneus_mi.data.synth import miscalibrated
     train = {'train.iterations': iterations, 'train.batch_rays': 512, 'train.validate_every': 0,
@@ -101,7 +101,8 @@ def main(argv=None) -> int:
     print(f'command: {command}'.rstrip(), flush=True)
     import reneus_mi  # noqa: F401
     import mitsuba as mi
-    from reneus_mi.evaluate import chamfer, load_mesh
+    from reneus_mi.geometry.chamfer import chamfer
+    from reneus_mi.geometry.mesh import load_mesh
     from reneus_mi.io import write_section
     from reneus_mi.train.runs import run_many
     from reneus_mi.data.synth import make_dataset

@@ -48,7 +48,9 @@ def main(argv=None) -> int:
     import drjit as dr
     import mitsuba as mi
     from reneus_mi import optimize
+    from reneus_mi.data import load_dataset
     from reneus_mi.fields import load_field
+    from reneus_mi.render.loading import load_scene
 
     checkpoint = os.path.join(args.run, 'checkpoint.npz')
     if not os.path.isfile(checkpoint):
@@ -62,7 +64,10 @@ def main(argv=None) -> int:
             if not os.path.isfile(checkpoint):
                 raise
             print(f'training ended with: {e}')
-    scene, ds = optimize.load(os.path.join(args.run, 'data', 'scene_reneus.xml'), None)
+    # The demo's photographs and scene lie beside its run folder.
+    data = os.path.abspath(args.run).rstrip(os.sep) + '_data'
+    scene = load_scene(os.path.join(data, 'scene_reneus.xml'))
+    ds = load_dataset(os.path.join(data, 'box'))
     integrator = scene.integrator()
     integrator.field = field = load_field(checkpoint)
     if args.inv_s:  # NeuS's s = exp(10 variance)

@@ -36,10 +36,11 @@ def child(args) -> None:
     from reneus_mi.train import runs
     from reneus_mi.config import replace
     from reneus_mi.data import load_dataset
-    from reneus_mi.optimize import make_demo, spec_of_scene
+    from reneus_mi.data.synth import demo_scene
+    from reneus_mi.train.runs import spec_of_scene
     from reneus_mi.data.scene_xml import write_scene
 
-    scene_path = make_demo(args.data)
+    scene_path = demo_scene(args.data)
     xml = os.path.join(args.data, f'scene_bench_{args.one}.xml')
     write_scene(load_dataset(os.path.join(os.path.dirname(scene_path), 'box')), xml, preset=args.one)
     spec = spec_of_scene(xml, None)

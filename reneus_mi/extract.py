@@ -11,57 +11,16 @@ from __future__ import annotations
 import argparse
 import sys
 
-import drjit as dr
-
 from reneus_mi import guards
-from reneus_mi.errors import ReneusError, exit_on_error
-from reneus_mi.render.frame import FieldFrame
-from reneus_mi.io import atomic_export
-from reneus_mi.geometry.surface import MESH_EXTENSIONS, POSTPROCESS_MODES, extract_mesh, postprocess
-
-
-def field_mesh(field, frame: FieldFrame, resolution: int, mode: str, container: str | None = None):
-    """The post-processed mesh of ``field`` in world coordinates.
-
-    Marching cubes runs over the container's box in the field's frame
-    (:meth:`FieldFrame.field_box`); ``container`` is the container mesh file,
-    needed by ``mode='crop'``.
-    """
-    lo, hi = frame.field_box()
-    with dr.suspend_grad():
-        mesh = extract_mesh(field, lo, hi, resolution, to_world=frame.to_world_matrix())
-    if mode == 'crop':
-        from reneus_mi.geometry.container import load_container
-        if not container:
-            raise ReneusError("postprocess 'crop' needs the container mesh, and none is recorded")
-        return postprocess(mesh, mode, load_container(container))
-    return postprocess(mesh, mode, None)
-
-
-def write_mesh(mesh, path: str) -> None:
-    """Export atomically (the format follows the extension)."""
-    atomic_export(mesh, path)
-
-
-#: Bytes per grid point of marching cubes: the float32 SDF grid, skimage's
-#: working copies, the vertices and faces. Measured (peak RSS, a sphere,
-#: resolution 64 -> 384): 4.9; doubled and more for surfaces with more faces.
-BYTES_PER_GRID_POINT = 12
-
-
-def check_resolution(resolution: int, what: str = '--resolution') -> None:
-    """Refuse a grid below 8 per axis, past 32-bit indices or the machine's memory."""
-    if resolution < 8:
-        raise ReneusError(f'{what} {resolution}: expected >= 8')
-    points = resolution ** 3
-    guards.check_index_range(points, f'{what} {resolution}')
-    guards.check_memory(points * BYTES_PER_GRID_POINT, f'{what} {resolution}')
+from reneus_mi.errors import exit_on_error
+from reneus_mi.geometry.mesh import MESH_EXTENSIONS, write_mesh
+from reneus_mi.geometry.surface import POSTPROCESS_MODES, check_resolution, field_mesh
+from reneus_mi.io import check_npz_file
 
 
 def main(argv=None) -> int:
-    import reneus_mi  # noqa: F401  (variant)
-    from reneus_mi.train import checkpoint
     from reneus_mi.fields import load_field
+    from reneus_mi.train import checkpoint
 
     parser = argparse.ArgumentParser(prog='python -m reneus_mi.extract', description=__doc__.splitlines()[0])
     parser.add_argument('checkpoint', help='checkpoint.npz of a reconstruction')
@@ -75,7 +34,7 @@ def main(argv=None) -> int:
         check_resolution(args.resolution)
         guards.check_output_file(args.output, inputs=[args.checkpoint], overwrite=args.overwrite,
                                  extensions=MESH_EXTENSIONS)
-        guards.check_npz_file(args.checkpoint, 'checkpoint')
+        check_npz_file(args.checkpoint, 'checkpoint')
         frame, container = checkpoint.load_frame(args.checkpoint)
         field = load_field(args.checkpoint)
         mesh = field_mesh(field, frame, args.resolution, args.postprocess, container)

@@ -15,16 +15,12 @@ from __future__ import annotations
 
 import json
 import os
-import zipfile
 
+from reneus_mi import limits
 from reneus_mi.errors import ReneusError
 
 #: Files that make a folder a dataset (its photographs are irreplaceable).
 DATASET_MARKERS = ('transforms.json', 'transforms_train.json', 'cameras_sphere.npz')
-#: Share of the physical memory one request may take.
-MEMORY_FRACTION = 0.8
-#: Dr.Jit indexes arrays with 32-bit unsigned integers.
-MAX_INDEX = 2**32 - 1
 
 
 def _real(path: str | os.PathLike) -> str:
@@ -158,8 +154,8 @@ def check_batch(batch_rays: int, model, what: str = '--batch-rays') -> None:
     samples = model.sampler.n_coarse + model.sampler.n_fine + 1
     segments = model.render.max_depth + 1
     label = f'{what} {batch_rays} ({samples} samples per segment, {segments} segments)'
-    check_index_range(batch_rays * samples * segments, label)
-    check_memory(training_bytes(batch_rays, samples, segments), label)
+    limits.check_index_range(batch_rays * samples * segments, label)
+    limits.check_memory(training_bytes(batch_rays, samples, segments), label)
 
 
 def check_field_reaches(center, scale: float, lo, hi, where: str) -> None:
@@ -193,34 +189,6 @@ def load_json(path: str | os.PathLike, what: str = 'file') -> dict:
     if not isinstance(data, dict):
         raise ReneusError(f'{path}: {what}: expected a JSON object')
     return data
-
-
-def physical_memory() -> int:
-    """Bytes of physical memory of this machine."""
-    return os.sysconf('SC_PHYS_PAGES') * os.sysconf('SC_PAGE_SIZE')
-
-
-def format_bytes(n: float) -> str:
-    for unit in ('B', 'KiB', 'MiB', 'GiB', 'TiB', 'PiB'):
-        if abs(n) < 1024 or unit == 'PiB':
-            return f'{n:.3g} {unit}'
-        n /= 1024
-    raise AssertionError('unreachable')
-
-
-def check_memory(n_bytes: float, what: str, *, available: int | None = None) -> None:
-    """Refuse a request for ``n_bytes`` above :data:`MEMORY_FRACTION` of the memory."""
-    limit = MEMORY_FRACTION * (physical_memory() if available is None else available)
-    if n_bytes > limit:
-        raise ReneusError(f'{what}: needs about {format_bytes(n_bytes)}, but this machine has '
-                          f'{format_bytes(limit / MEMORY_FRACTION)} of memory; expected a smaller value')
-
-
-def check_index_range(count: int, what: str) -> None:
-    """Refuse ``count`` elements in one Dr.Jit array (32-bit indices)."""
-    if count > MAX_INDEX:
-        raise ReneusError(f'{what}: {count} elements in one array exceed the 32-bit index '
-                          f'limit {MAX_INDEX}; expected a smaller value')
 
 
 #: Bytes per sample slot (ray x segment x sample) of a training step, a floor.
@@ -390,29 +358,6 @@ def recent_psnr(entries: list[dict], n: int = 100) -> float | None:
     """Mean PSNR of the last ``n`` log entries, None when there are none."""
     values = [e['psnr'] for e in entries[-n:] if isinstance(e.get('psnr'), (int, float))]
     return sum(values) / len(values) if values else None
-
-
-def check_npz_file(path: str | os.PathLike, what: str = 'checkpoint', keys=('meta',)) -> None:
-    """Refuse a missing, truncated or foreign ``.npz`` (a checkpoint, a saved field) in one line.
-
-    ``keys`` are arrays the file must hold (a checkpoint's ``meta``).
-    """
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise ReneusError(f'{path}: {what} file does not exist')
-    try:
-        with zipfile.ZipFile(path) as z:
-            bad = z.testzip()
-            names = z.namelist()
-    except (zipfile.BadZipFile, OSError, EOFError) as e:
-        raise ReneusError(f'{path}: not a whole {what} (truncated, or not an .npz: {e}); '
-                          'expected a file written by reneus-mi') from None
-    if bad is not None:
-        raise ReneusError(f'{path}: {what} is corrupt (entry {bad}); expected a whole file')
-    absent = [k for k in keys if f'{k}.npy' not in names]
-    if absent:
-        raise ReneusError(f"{path}: not a reneus-mi {what} (no {', '.join(absent)}); "
-                          'expected a file written by reneus-mi')
 
 
 def remove_stray_temporaries(folder: str | os.PathLike) -> list[str]:

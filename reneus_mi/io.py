@@ -1,4 +1,4 @@
-"""Atomic file writes: a kill never leaves a torn file behind.
+"""Files written atomically (a kill never leaves a torn file behind), and read back whole.
 
 Every writer of the package goes through :func:`atomic_path`: the data goes to
 a temporary file beside the target (same folder, so the rename is atomic; same
@@ -10,8 +10,11 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
+import zipfile
 
 import numpy as np
+
+from reneus_mi.errors import ReneusError
 
 
 @contextlib.contextmanager
@@ -73,3 +76,26 @@ def atomic_export(mesh, path: str | os.PathLike) -> None:
 def is_temporary(name: str) -> bool:
     """Whether a file name is one of :func:`atomic_path`'s temporaries (left by a kill)."""
     return os.path.basename(name).startswith('.tmp-')
+
+
+def check_npz_file(path: str | os.PathLike, what: str = 'checkpoint', keys=('meta',)) -> None:
+    """Refuse a missing, truncated or foreign ``.npz`` (a checkpoint, a saved field) in one line.
+
+    ``keys`` are arrays the file must hold (a checkpoint's ``meta``).
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ReneusError(f'{path}: {what} file does not exist')
+    try:
+        with zipfile.ZipFile(path) as z:
+            bad = z.testzip()
+            names = z.namelist()
+    except (zipfile.BadZipFile, OSError, EOFError) as e:
+        raise ReneusError(f'{path}: not a whole {what} (truncated, or not an .npz: {e}); '
+                          'expected a file written by reneus-mi') from None
+    if bad is not None:
+        raise ReneusError(f'{path}: {what} is corrupt (entry {bad}); expected a whole file')
+    absent = [k for k in keys if f'{k}.npy' not in names]
+    if absent:
+        raise ReneusError(f"{path}: not a reneus-mi {what} (no {', '.join(absent)}); "
+                          'expected a file written by reneus-mi')

@@ -21,46 +21,6 @@ from reneus_mi import cli
 from reneus_mi.config import TrainConfig
 from reneus_mi.errors import ReneusError, exit_on_error
 
-#: The embedded demo: object, dataset size and preset.
-DEMO_OBJECT = 'insect'
-DEMO_DATA = {'views': 32, 'res': 64, 'spp': 128}
-DEMO_PRESET = 'demo'
-
-
-def make_demo(folder: str, *, mode: str = 'reneus') -> str:
-    """Render the demo dataset into ``folder`` (once) and return its scene XML."""
-    from reneus_mi.data import load_dataset
-    from reneus_mi.data.scene_xml import write_scene
-    from reneus_mi.data.synth import make_dataset
-    data = os.path.join(folder, 'box')
-    if not os.path.isfile(os.path.join(data, 'transforms.json')):
-        print(f'rendering the demo dataset ({DEMO_OBJECT}, {DEMO_DATA["views"]} views) into {folder}')
-        make_dataset(DEMO_OBJECT, folder, subsets=('box',), **DEMO_DATA)
-    scene = os.path.join(folder, f'scene_{mode}.xml')
-    write_scene(load_dataset(data), scene, preset=DEMO_PRESET, mode=mode)
-    return scene
-
-
-def spec_of_scene(scene_path: str, data: str | None):
-    """The run of a scene XML: its integrator's model, its preset's training, its dataset."""
-    import reneus_mi  # noqa: F401  (variant, plugins)
-    from reneus_mi.config import ReconstructionConfig
-    from reneus_mi.presets import preset
-    from reneus_mi.render.loading import load_scene
-    from reneus_mi.train.runs import RunSpec
-    integrator = load_scene(scene_path).integrator()
-    if not hasattr(integrator, 'render_rays'):
-        raise ReneusError(f'{scene_path}: the integrator is {type(integrator).__name__}; '
-                          'expected <integrator type="reneus">')
-    data = data or integrator.dataset
-    if not data:
-        raise ReneusError(f'{scene_path}: no dataset: give the integrator '
-                          '<string name="dataset" value="FOLDER"/> or pass --data')
-    if not os.path.isabs(data):
-        data = os.path.join(os.path.dirname(os.path.abspath(scene_path)), data)
-    config = ReconstructionConfig(model=integrator.model, train=preset(integrator.preset).train)
-    return RunSpec(scene_path, data, config, integrator.preset)
-
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog='python -m reneus_mi.optimize',
@@ -85,6 +45,7 @@ def main(argv=None) -> int:
 
 def run(args) -> str:
     from reneus_mi import guards
+    from reneus_mi.data.synth import demo_scene
     from reneus_mi.train import runs
     from reneus_mi.config import replace
     if args.scene is None and not args.demo and not args.resume:
@@ -105,8 +66,8 @@ def run(args) -> str:
                               'another --output')
         guards.check_run_dir(out, inputs=[args.scene, args.data])
         # The demo's photographs go beside the run folder: no run ever writes where its inputs are.
-        scene = make_demo(os.path.abspath(out).rstrip(os.sep) + '_data') if args.demo else args.scene
-        spec = spec_of_scene(scene, args.data)
+        scene = demo_scene(os.path.abspath(out).rstrip(os.sep) + '_data') if args.demo else args.scene
+        spec = runs.spec_of_scene(scene, args.data)
     given = cli.given_arguments(TrainConfig, args)
     spec.config = replace(spec.config, **{f'train.{k}': v for k, v in given.items()})
     result = runs.run(spec, out, resume=args.resume, progress=not args.quiet)
@@ -125,7 +86,8 @@ def run(args) -> str:
     from reneus_mi.data import load_dataset
     gt = load_dataset(spec.data, need_container=False).gt_mesh
     if gt:
-        from reneus_mi.evaluate import chamfer, load_mesh
+        from reneus_mi.geometry.chamfer import chamfer
+        from reneus_mi.geometry.mesh import load_mesh
         c = chamfer(load_mesh(result['mesh']), load_mesh(gt))
         lines.append(f"Chamfer-L1 x100 to the ground truth: {c['chamfer']:.3f} (postprocess {cfg.postprocess})")
     return '\n'.join(lines)

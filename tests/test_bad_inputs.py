@@ -26,7 +26,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from reneus_mi import evaluate, extract, optimize, render, scene, synth
+from reneus_mi import evaluate, extract, optimize, scene, synth
+from reneus_mi.render import __main__ as render
 from test_checkpoint import tiny_dataset
 
 TRAIN = ['--iterations', '2', '--checkpoint-every', '1', '--batch-rays', '64', '--warm-up', '1',
@@ -87,8 +88,8 @@ def one_error_line(proc, *parts) -> None:
 @pytest.fixture
 def small_machine(monkeypatch):
     """8 GiB of memory, whatever this machine has: size limits do not depend on the host."""
-    from reneus_mi import guards
-    monkeypatch.setattr(guards, 'physical_memory', lambda: 8 * 2**30)
+    from reneus_mi import limits
+    monkeypatch.setattr(limits, 'physical_memory', lambda: 8 * 2**30)
 
 
 # ------------------------------------------------------------------ fixtures
@@ -275,11 +276,11 @@ def test_optimize_container_100_units_away(world, data, tmp_path):
 
 
 def test_optimize_mask_disagrees_with_the_container(world, data, tmp_path):
-    from reneus_mi.data.images import read_image, write_png
+    from reneus_mi.data.images import read_image, write_image
     rgb, _ = read_image(str(data / 'images' / 'r_005.png'))
     alpha = np.zeros(rgb.shape[:2])
     alpha[:2, :2] = 1.0
-    write_png(str(data / 'images' / 'r_005.png'), np.concatenate([rgb, alpha[..., None]], -1))
+    write_image(str(data / 'images' / 'r_005.png'), np.concatenate([rgb, alpha[..., None]], -1))
     refused(optimize.main, train(world, data, tmp_path), 'r_005.png', 'view 5', 'IoU',
             watch=[tmp_path])
 
@@ -634,7 +635,7 @@ def test_interrupted_step_leaves_the_batch_stream_alone(world, tmp_path):
 
 
 def test_validation_without_surface_goes_on(world, tmp_path, monkeypatch):
-    from reneus_mi.geometry.surface import NoSurfaceError
+    from reneus_mi.errors import NoSurfaceError
     from test_checkpoint import new_trainer
     trainer = new_trainer(world['scene'], tmp_path / 'out')
 
@@ -683,7 +684,7 @@ def test_optimize_help_states_each_default_once(capsys):
 
 
 def test_final_mesh_without_surface_says_the_run_can_go_on(world, tmp_path, monkeypatch):
-    from reneus_mi.geometry.surface import NoSurfaceError
+    from reneus_mi.errors import NoSurfaceError
     from test_checkpoint import new_trainer
     trainer = new_trainer(world['scene'], tmp_path / 'out')
     trainer.iteration = trainer.cfg.iterations          # nothing left to train

@@ -30,7 +30,7 @@ import pytest
 
 from reneus_mi.train import checkpoint, runs
 from reneus_mi.config import replace
-from reneus_mi.optimize import spec_of_scene
+from reneus_mi.train.runs import spec_of_scene
 from reneus_mi.train.trainer import Trainer, TrainingError
 
 PARAM_ATOL = 1e-5

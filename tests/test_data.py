@@ -11,7 +11,7 @@ import trimesh
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.geometry.container import container_masks
-from reneus_mi.data.images import read_image, write_png
+from reneus_mi.data.images import read_image, write_image
 
 H, W = 12, 16
 BOX = (1.0, 0.8, 0.6)
@@ -92,10 +92,10 @@ def test_image_encodings(tmp_path):
     mi.Bitmap(np.full((2, 3, 3), 0.2, np.float32)).write(str(tmp_path / 'lin.exr'))
     rgb, alpha = read_image(str(tmp_path / 'lin.exr'))
     assert alpha is None and np.allclose(rgb, 1.055 * 0.2 ** (1 / 2.4) - 0.055, atol=1e-5)
-    write_png(str(tmp_path / 'grey.png'), np.full((2, 3), 0.4))
+    write_image(str(tmp_path / 'grey.png'), np.full((2, 3), 0.4))
     rgb, alpha = read_image(str(tmp_path / 'grey.png'))
     assert alpha is None and rgb.shape == (2, 3, 3) and np.allclose(rgb, 102 / 255)
-    write_png(str(tmp_path / 'rgba.png'), np.dstack([np.full((2, 3, 3), 0.6), np.eye(2, 3)]))
+    write_image(str(tmp_path / 'rgba.png'), np.dstack([np.full((2, 3, 3), 0.6), np.eye(2, 3)]))
     rgb, alpha = read_image(str(tmp_path / 'rgba.png'))
     assert np.allclose(rgb, 153 / 255) and np.array_equal(alpha, np.eye(2, 3))
 
@@ -111,7 +111,7 @@ def test_blender_opengl_convention(tmp_path):
     gl[:3, 0], gl[:3, 1], gl[:3, 2], gl[:3, 3] = right, np.cross(back, right), back, eye
     trimesh.creation.box(extents=BOX).export(tmp_path / 'glass.obj')
     os.makedirs(tmp_path / 'train')
-    write_png(str(tmp_path / 'train' / 'r_0.png'), np.full((h, w, 3), 0.5))
+    write_image(str(tmp_path / 'train' / 'r_0.png'), np.full((h, w, 3), 0.5))
     meta = {'camera_angle_x': 0.6, 'IOR': 1.45, 'mesh_outside': 'glass.obj',
             'frames': [{'file_path': './train/r_0', 'transform_matrix': gl.tolist()}]}
     (tmp_path / 'transforms.json').write_text(json.dumps(meta))
@@ -197,7 +197,7 @@ def test_blender_errors(written, tmp_path):
         load_dataset(str(folder))
     meta_path.write_text(original)
 
-    write_png(str(folder / 'images' / 'v2.png'), np.zeros((H + 1, W, 3)))
+    write_image(str(folder / 'images' / 'v2.png'), np.zeros((H + 1, W, 3)))
     with pytest.raises(ValueError, match=r"frames\[2\]: 'h' is 12, but the image is 16x13"):
         load_dataset(str(folder))
     (folder / 'images' / 'v2.png').write_bytes(b'not a png')
@@ -211,11 +211,11 @@ def test_neus_errors(written, tmp_path):
     with pytest.raises(ValueError, match=r"image: has 2 images, but .*cameras_sphere.npz has 3 "
                                          r"cameras; .* missing \[2\]"):
         load_dataset(str(folder))
-    write_png(str(folder / 'image' / '002.png'), np.zeros((H, W + 2, 3)))
+    write_image(str(folder / 'image' / '002.png'), np.zeros((H, W + 2, 3)))
     with pytest.raises(ValueError, match=r"002.png: image is 18x12, but .*000.png is 16x12"):
         load_dataset(str(folder))
     shutil.copy(tmp_path / '002.png', folder / 'image' / '002.png')
-    write_png(str(folder / 'mask' / '001.png'), np.ones((H - 1, W)))
+    write_image(str(folder / 'mask' / '001.png'), np.ones((H - 1, W)))
     with pytest.raises(ValueError, match=r"mask of .*001.png: is 16x11, expected the image size "
                                          "16x12"):
         load_dataset(str(folder))
@@ -389,8 +389,8 @@ def test_mis_posed_views_are_named(written, tmp_path, edit, message):
 
 def test_mask_disagreeing_with_the_projection(written, tmp_path):
     folder = mutable(written, tmp_path, 'neus')
-    write_png(str(folder / 'mask' / '001.png'), np.zeros((H, W)))
-    write_png(str(folder / 'mask' / '001.png'), np.pad(np.ones((3, 3)), ((0, H - 3), (0, W - 3))))
+    write_image(str(folder / 'mask' / '001.png'), np.zeros((H, W)))
+    write_image(str(folder / 'mask' / '001.png'), np.pad(np.ones((3, 3)), ((0, H - 3), (0, W - 3))))
     with pytest.raises(ValueError, match=r"001.png: view 1: the mask overlaps the container's "
                                          r"projection by IoU 0.0"):
         load_dataset(str(folder))

@@ -8,7 +8,9 @@ import pytest
 import trimesh
 
 import reneus_mi  # noqa: F401  (sets the variant)
-from reneus_mi.evaluate import chamfer, load_mesh, main
+from reneus_mi.evaluate import main
+from reneus_mi.geometry.chamfer import chamfer
+from reneus_mi.geometry.mesh import load_mesh
 
 
 def square(n=20):

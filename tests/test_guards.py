@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from reneus_mi import guards
+from reneus_mi import guards, limits
 from reneus_mi.errors import ReneusError, exit_on_error, user_message
-from reneus_mi.io import atomic_path, atomic_write_text
+from reneus_mi.io import atomic_path, atomic_write_text, check_npz_file
 
 
 def dataset_folder(path):
@@ -71,13 +71,13 @@ def test_run_dir(tmp_path):
 
 
 def test_memory_and_indices():
-    guards.check_memory(10 * 2**30, 'x', available=16 * 2**30)
+    limits.check_memory(10 * 2**30, 'x', available=16 * 2**30)
     with pytest.raises(ReneusError, match=r'x: needs about 14 GiB, but this machine has 16 GiB'):
-        guards.check_memory(14 * 2**30, 'x', available=16 * 2**30)
-    guards.check_index_range(2**32 - 1, 'n')
+        limits.check_memory(14 * 2**30, 'x', available=16 * 2**30)
+    limits.check_index_range(2**32 - 1, 'n')
     with pytest.raises(ReneusError, match='n: 4294967296 elements .* 32-bit index limit'):
-        guards.check_index_range(2**32, 'n')
-    assert guards.physical_memory() > 2**28
+        limits.check_index_range(2**32, 'n')
+    assert limits.physical_memory() > 2**28
 
 
 def test_training_bytes_is_a_floor_of_the_measured_cost():
@@ -124,14 +124,14 @@ def test_repair_log(tmp_path):
 def test_npz_file(tmp_path):
     path = tmp_path / 'c.npz'
     np.savez(path, meta=np.array('{}'), w=np.zeros(1000))
-    guards.check_npz_file(path)
+    check_npz_file(path)
     with pytest.raises(ReneusError, match=r"not a reneus-mi checkpoint \(no header\)"):
-        guards.check_npz_file(path, keys=('header',))
+        check_npz_file(path, keys=('header',))
     path.write_bytes(path.read_bytes()[:300])
     with pytest.raises(ReneusError, match='not a whole checkpoint'):
-        guards.check_npz_file(path)
+        check_npz_file(path)
     with pytest.raises(ReneusError, match='checkpoint file does not exist'):
-        guards.check_npz_file(tmp_path / 'none.npz')
+        check_npz_file(tmp_path / 'none.npz')
 
 
 def test_stray_temporaries(tmp_path):

@@ -21,9 +21,10 @@ from reneus_mi.train import runs
 from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
 from reneus_mi.errors import ReneusError
-from reneus_mi.evaluate import chamfer, load_mesh
+from reneus_mi.geometry.chamfer import chamfer
+from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.data.objects import container_mesh
-from reneus_mi.optimize import spec_of_scene
+from reneus_mi.train.runs import spec_of_scene
 from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.train.silhouette import SilhouetteLoss
 from reneus_mi.render.surroundings import ContainerPose, Light, fibonacci_directions, sh_basis

@@ -10,7 +10,8 @@ import trimesh
 from reneus_mi.data import Dataset, write_dataset
 from reneus_mi.geometry.container import container_masks
 from reneus_mi.data.cameras import intrinsics, look_at
-from reneus_mi.scene import main, sensor_dict, write_scene
+from reneus_mi.data.scene_xml import sensor_dict, write_scene
+from reneus_mi.scene import main
 
 H, W = 12, 16
 
@@ -139,7 +140,7 @@ def test_cli(tmp_path, capsys):
 
 def test_container_parts_apart_or_hollow_pass_overlapping_fail():
     import trimesh
-    from reneus_mi.render.loading import _check_disjoint
+    from reneus_mi.geometry.container import _check_disjoint
     outer = trimesh.creation.box(extents=(2, 2, 2))
     apart = trimesh.creation.box().apply_translation((5, 0, 0))
     cavity = trimesh.creation.box()

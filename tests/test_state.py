@@ -159,7 +159,7 @@ def test_training_steps_reuse_their_kernels(scene_xml, tmp_path, budget):
     (it once filled ~/.drjit with 97,000 files and slowed steps 7x)."""
     from reneus_mi.data.scene_xml import write_scene
     from reneus_mi.data import load_dataset
-    from reneus_mi.optimize import spec_of_scene
+    from reneus_mi.train.runs import spec_of_scene
     xml = str(tmp_path / 'fast.xml')
     write_scene(load_dataset(os.path.join(os.path.dirname(scene_xml), 'box')), xml, preset='fast')
     spec = spec_of_scene(xml, None)

@@ -9,8 +9,9 @@ import trimesh
 from scipy.ndimage import binary_dilation
 
 import reneus_mi  # noqa: F401  (sets the variant)
-from reneus_mi.data import objects, synth
+from reneus_mi.data import load_dataset, objects, synth
 from reneus_mi.geometry.container import container_masks
+from reneus_mi.synth import main as synth_main
 
 BACKGROUND = synth.ENVIRONMENT ** (1.0 / synth.GAMMA)
 
@@ -60,7 +61,7 @@ def test_bad_object_is_a_clear_error(tmp_path, capsys):
     with pytest.raises(ValueError, match="'nope': neither an object name"):
         objects.load_object('nope')
     with pytest.raises(SystemExit) as exit_info:
-        synth.main(['nope', '-o', str(tmp_path)])
+        synth_main(['nope', '-o', str(tmp_path)])
     assert str(exit_info.value.code).startswith('error: ') and 'nope' in str(exit_info.value.code)
     with pytest.raises(ValueError, match='subsets'):
         synth.make_dataset('sphere', str(tmp_path), subsets=('glass',))
@@ -124,15 +125,13 @@ def test_masks_are_the_glass_silhouette(rendered):
 
 
 def test_dataset_round_trip(tmp_path):
-    data = pytest.importorskip('reneus_mi.data', reason='reneus_mi.data not available')
-    pytest.importorskip('reneus_mi.scene', reason='reneus_mi.scene (write_scene) not available yet')
     res = synth.make_dataset('sphere', str(tmp_path), views=3, res=16, spp=4, seed=2)
     assert sorted(os.listdir(tmp_path)) == ['box', 'box.ply', 'box_neus', 'gt.ply', 'nobox',
                                             'nobox_neus', 'synth.json']
     for subset, with_box in (('box', True), ('nobox', False)):
         assert os.path.isfile(os.path.join(res['paths'][subset]['blender'], 'scene.xml'))
         for fmt, folder in res['paths'][subset].items():
-            ds = data.load_dataset(folder, need_container=with_box)
+            ds = load_dataset(folder, need_container=with_box)
             np.testing.assert_allclose(ds.K, res['K'], atol=1e-6)
             np.testing.assert_allclose(ds.c2w, res['c2w'], atol=1e-6)
             np.testing.assert_array_equal(ds.masks, res['masks'])

@@ -29,7 +29,7 @@ from reneus_mi.io import atomic_write_text
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
                                     has_skew, intrinsics)
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
-from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, write_png
+from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, write_image
 
 #: Metadata file names, in order of preference.
 TRANSFORMS_FILES = ('transforms.json', 'transforms_train.json')
@@ -138,8 +138,8 @@ def write(ds: Dataset, out_dir: str) -> None:
     frames = []
     for i, name in enumerate(ds.names):
         file_path = f"images/{os.path.splitext(name)[0]}.png"
-        write_png(os.path.join(out_dir, file_path),
-                  np.concatenate([ds.images[i], ds.masks[i][..., None]], axis=-1))
+        write_image(os.path.join(out_dir, file_path),
+                    np.concatenate([ds.images[i], ds.masks[i][..., None]], axis=-1))
         frame = {'file_path': file_path,
                  'transform_matrix': (ds.c2w[i] @ OPENGL_FROM_OPENCV).tolist()}
         if not shared:

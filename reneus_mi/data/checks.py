@@ -52,7 +52,7 @@ def check_views(container, K: np.ndarray, c2w: np.ndarray, height: int, width: i
     ``files`` name the views; ``given_masks`` maps view indices to masks read
     from files (computed ones agree by construction).
     """
-    from reneus_mi.geometry.surface import inside
+    from reneus_mi.geometry.container import inside
     vertices = np.asarray(container.vertices, dtype=np.float64)
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
@@ -88,7 +88,7 @@ def check_views(container, K: np.ndarray, c2w: np.ndarray, height: int, width: i
 
 def _check_masks(container, K, c2w, height, width, files, given_masks) -> None:
     import mitsuba as mi
-    from reneus_mi.geometry.surface import mitsuba_mesh
+    from reneus_mi.geometry.mesh import mitsuba_mesh
     scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container)})
     stride = max(1, int(np.ceil(np.sqrt(height * width / MASK_SAMPLES))))
     ys, xs = np.mgrid[0:height:stride, 0:width:stride]

@@ -1,4 +1,4 @@
-"""Reading and writing images with :class:`mitsuba.Bitmap`.
+"""Reading and writing images with :class:`mitsuba.Bitmap`: the package's one image reader and writer.
 
 Photographs are kept as they were taken: gamma-encoded values in [0, 1].
 8/16-bit PNG and JPEG are sRGB-encoded already; linear files (EXR) are encoded
@@ -16,6 +16,9 @@ from reneus_mi.io import atomic_path
 
 #: File extensions tried, in this order, for a NeRF ``file_path`` without one.
 IMAGE_EXTENSIONS = ('.png', '.jpg', '.jpeg', '.exr', '.PNG', '.JPG', '.JPEG', '.EXR')
+
+#: Image files :func:`write_image` writes.
+WRITE_EXTENSIONS = ('.exr', '.png')
 
 _WITH_ALPHA = ('YA', 'RGBA')
 
@@ -47,13 +50,23 @@ def read_mask(path: str) -> np.ndarray:
     return (alpha if alpha is not None else rgb.max(axis=-1)) > 0.5
 
 
-def write_png(path: str, image: np.ndarray) -> None:
-    """Write a float image in [0,1] ((H,W), (H,W,3) or (H,W,4)) as an 8-bit PNG."""
+def write_image(path: str, image: np.ndarray) -> None:
+    """Write ``image`` atomically: EXR keeps every channel as float32; PNG is 8-bit, values
+    clipped to [0, 1], (H,W) or one channel grey, three RGB, four RGBA."""
     image = np.asarray(image)
     if image.ndim == 2:
         image = image[..., None]
-    fmt = {1: mi.Bitmap.PixelFormat.Y, 3: mi.Bitmap.PixelFormat.RGB,
-           4: mi.Bitmap.PixelFormat.RGBA}[image.shape[-1]]
-    u8 = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+    ext = os.path.splitext(path)[1].lower()
+    if ext == '.exr':
+        bitmap = mi.Bitmap(image.astype(np.float32))
+    elif ext == '.png':
+        formats = {1: mi.Bitmap.PixelFormat.Y, 3: mi.Bitmap.PixelFormat.RGB, 4: mi.Bitmap.PixelFormat.RGBA}
+        if image.shape[-1] not in formats:
+            raise ReneusError(f'{path}: a PNG holds 1, 3 or 4 channels, the image has {image.shape[-1]}; '
+                              'expected an .exr file to keep them all')
+        u8 = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+        bitmap = mi.Bitmap(u8, pixel_format=formats[image.shape[-1]])
+    else:
+        raise ReneusError(f"{path}: expected a file ending in {' or '.join(WRITE_EXTENSIONS)}")
     with atomic_path(path) as tmp:
-        mi.Bitmap(u8, pixel_format=fmt).write(tmp)
+        bitmap.write(tmp)

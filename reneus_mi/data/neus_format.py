@@ -35,7 +35,7 @@ from reneus_mi.data.cameras import compose_projection, decompose_projection
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_savez, atomic_write_text
-from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, read_mask, write_png
+from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, read_mask, write_image
 
 CAMERAS_FILE = 'cameras_sphere.npz'
 META_FILE = 'reneus.json'
@@ -162,8 +162,8 @@ def write(ds: Dataset, out_dir: str) -> None:
     for sub in ('image', 'mask'):
         os.makedirs(os.path.join(out_dir, sub), exist_ok=True)
     for i, stem in enumerate(stems):
-        write_png(os.path.join(out_dir, 'image', f'{stem}.png'), ds.images[i])
-        write_png(os.path.join(out_dir, 'mask', f'{stem}.png'), ds.masks[i].astype(np.float32))
+        write_image(os.path.join(out_dir, 'image', f'{stem}.png'), ds.images[i])
+        write_image(os.path.join(out_dir, 'mask', f'{stem}.png'), ds.masks[i].astype(np.float32))
     cams = {}
     for i in range(len(ds)):
         cams[f'world_mat_{i}'] = compose_projection(ds.K[i], ds.c2w[i])

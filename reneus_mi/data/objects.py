@@ -30,7 +30,8 @@ import trimesh
 
 from reneus_mi.errors import ReneusError
 from reneus_mi.fields.base import Field
-from reneus_mi.geometry.surface import extract_mesh, load_mesh
+from reneus_mi.geometry.mesh import load_mesh
+from reneus_mi.geometry.surface import extract_mesh
 
 
 # ----------------------------------------------------------------- SDF parts

@@ -1,4 +1,4 @@
-"""Mitsuba 3 scene of a dataset: the container, the lighting and one camera.
+"""The Mitsuba 3 scene of a dataset: the container, the lighting and one camera.
 
 :func:`write_scene` writes an XML file (format version 3.0.0) that
 ``mi.load_file`` reads: the container mesh (if the dataset has one) as a smooth ``dielectric``
@@ -9,13 +9,10 @@ integrator. For the ``reneus`` integrator it also names the dataset and the
 sphere the field lives in (``field_center``, ``field_scale``, see
 :meth:`reneus_mi.data.Dataset.normalization`).
 
-Command line::
-
-    python -m reneus_mi.scene DATA_DIR -o scene.xml [--integrator reneus] [--set max_depth=3]
+``python -m reneus_mi.scene DATA_DIR -o scene.xml`` writes one (:mod:`reneus_mi.scene`).
 """
 from __future__ import annotations
 
-import argparse
 import os
 import warnings
 import xml.etree.ElementTree as ET
@@ -23,11 +20,10 @@ import xml.etree.ElementTree as ET
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi import guards
-from reneus_mi.data import Dataset, load_dataset
+from reneus_mi.data.dataset import Dataset
 from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
 from reneus_mi.geometry.container import mesh_type
-from reneus_mi.errors import ReneusError, exit_on_error
+from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_open
 
 #: Container IOR when the dataset states none (the paper's synthetic glass).
@@ -39,7 +35,7 @@ SAMPLE_COUNT = 16
 #: Relative focal-length difference above which fx != fy is reported.
 _SQUARE_PIXEL_TOL = 1e-4
 #: Integrator properties that write_scene sets itself for the reneus integrator.
-_RESERVED = ('dataset', 'field_center', 'field_scale')
+RESERVED = ('dataset', 'field_center', 'field_scale')
 
 
 def sensor_params(K: np.ndarray, c2w: np.ndarray, width: int, height: int) -> dict:
@@ -101,7 +97,7 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
               **integrator_settings) -> ET.ElementTree:
     """Build the scene of :func:`write_scene`; file paths relative to ``xml_dir``."""
     ds.validate()
-    clash = [k for k in integrator_settings if integrator == 'reneus' and k in _RESERVED]
+    clash = [k for k in integrator_settings if integrator == 'reneus' and k in RESERVED]
     if clash:
         raise ReneusError(f"integrator settings {clash}: set by write_scene from the dataset")
     shape_type = None if ds.container is None else mesh_type(ds.container)
@@ -167,83 +163,3 @@ def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: 
     tree = scene_xml(ds, xml_dir, integrator=integrator, ambient=ambient, **integrator_settings)
     with atomic_open(path, 'wb') as f:
         tree.write(f, encoding='utf-8', xml_declaration=True)
-
-
-def _setting(text: str) -> tuple[str, str]:
-    key, sep, value = text.partition('=')
-    if not sep or not key:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE")
-    return key, value
-
-
-def _literal(text: str) -> bool | int | float | str:
-    if text.lower() in ('true', 'false'):
-        return text.lower() == 'true'
-    for cast in (int, float):
-        try:
-            return cast(text)
-        except ValueError:
-            pass
-    return text
-
-
-def typed_settings(settings: list[tuple[str, str]], preset: str) -> dict:
-    """``--set`` values typed as the integrator's settings are (``reneus_mi.config``)."""
-    from reneus_mi.plugins.reneus import property_types
-    kinds = dict(settings)
-    types = property_types(preset, kinds.get('field'))
-    out = {}
-    for key, text in settings:
-        if key not in types or key in _RESERVED or key == 'preset':
-            raise ReneusError(f"--set {key}: not a setting of the reneus integrator; expected one of "
-                              f"{', '.join(k for k in types if k not in (*_RESERVED, 'preset'))}")
-        kind = types[key]
-        try:
-            if kind is bool:
-                if text.lower() not in ('true', 'false'):
-                    raise ValueError
-                out[key] = text.lower() == 'true'
-            else:
-                out[key] = kind(text) if kind in (int, float, str) else text
-        except ValueError:
-            raise ReneusError(f"--set {key}={text}: expected {'true or false' if kind is bool else kind.__name__}") from None
-    return out
-
-
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog='python -m reneus_mi.scene',
-        description='Write a Mitsuba 3 scene (container, ambient light, first camera, '
-                    'integrator) for a ReNeuS dataset.')
-    parser.add_argument('data_dir', metavar='DATA_DIR',
-                        help='dataset folder (transforms.json or cameras_sphere.npz)')
-    parser.add_argument('-o', '--output', required=True, help='scene XML file to write')
-    parser.add_argument('--integrator', default='reneus',
-                        help='integrator plugin name (default: %(default)s)')
-    parser.add_argument('--preset', default='fast',
-                        help="the reneus integrator's preset (reneus_mi.presets: fast, cpu, paper, "
-                             "demo, tiny; default: %(default)s)")
-    parser.add_argument('--set', dest='settings', metavar='KEY=VALUE', type=_setting,
-                        action='append', default=[],
-                        help='an integrator setting over the preset, e.g. max_depth=3 or field_hidden=64, '
-                             'typed as reneus_mi.config declares it (repeatable)')
-    parser.add_argument('--overwrite', action='store_true', help='replace an existing scene file')
-    args = parser.parse_args(argv)
-    with exit_on_error():
-        guards.check_output_file(args.output, inputs=[args.data_dir], overwrite=args.overwrite,
-                                 extensions=('.xml',))
-        ds = load_dataset(args.data_dir, need_container=False)
-        if ds.container is None:
-            warnings.warn(f"{args.data_dir}: dataset names no container mesh; "
-                          "the scene has none")
-        if args.integrator == 'reneus':
-            from reneus_mi.presets import preset
-            preset(args.preset)
-            settings = {'preset': args.preset, **typed_settings(args.settings, args.preset)}
-        else:  # another plugin's settings: typed by their look
-            settings = {key: _literal(text) for key, text in args.settings}
-        write_scene(ds, args.output, integrator=args.integrator, **settings)
-
-
-if __name__ == '__main__':
-    main()

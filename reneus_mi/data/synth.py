@@ -15,18 +15,16 @@ Output of ``make_dataset(obj, DIR)``::
                           ``vertex_color`` (Mitsuba's name; trimesh reads the geometry)
     DIR/box.ply           the container: a box has unshared vertices (flat normals in any
                           loader), the rounded block and the jar carry vertex normals
-    DIR/box/, DIR/nobox/  Blender format, with scene.xml (reneus_mi.scene.write_scene)
+    DIR/box/, DIR/nobox/  Blender format, with scene.xml (reneus_mi.data.scene_xml.write_scene)
     DIR/box_neus/, DIR/nobox_neus/   the same in NeuS format
     DIR/synth.json        settings, spp, max_depth and the measured noise
 
-Command line: ``python -m reneus_mi.synth insect -o DIR --views 60 --res 800``.
+Command line: ``python -m reneus_mi.synth insect -o DIR --views 60 --res 800`` (:mod:`reneus_mi.synth`).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import sys
 import time
 
 import mitsuba as mi
@@ -34,13 +32,13 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from reneus_mi import guards
+from reneus_mi import guards, limits
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.geometry.container import container_masks
-from reneus_mi.errors import ReneusError, exit_on_error
+from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_export, atomic_path, atomic_write_text
-from reneus_mi.data.objects import CONTAINERS, OBJECTS, load_object, normalize
+from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 
 #: Index of refraction of the glass box.
@@ -59,6 +57,10 @@ DEFAULT_SPP = 256
 DEFAULT_MAX_DEPTH = 12
 #: Subsets a dataset can have.
 SUBSETS = ('box', 'nobox')
+#: The embedded demo: object, dataset size and preset.
+DEMO_OBJECT = 'insect'
+DEMO_DATA = {'views': 32, 'res': 64, 'spp': 128}
+DEMO_PRESET = 'demo'
 
 # Rays traced per mi.render call: larger renders are split into passes of
 # this many lanes, which bounds the memory of one wavefront.
@@ -91,7 +93,7 @@ def sample_cameras(views: int, res: int, seed: int = 0,
 
 
 def _sensor(K: np.ndarray, c2w: np.ndarray, res: int) -> mi.Sensor:
-    """Mitsuba's sensor of an OpenCV camera (:func:`reneus_mi.scene.sensor_dict`)."""
+    """Mitsuba's sensor of an OpenCV camera (:func:`reneus_mi.data.scene_xml.sensor_dict`)."""
     desc = sensor_dict(K, c2w, res, res)
     # Stratified samples: a third of the independent sampler's noise at the
     # same spp inside the glass (measured on the insect at 256 spp).
@@ -218,7 +220,7 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     # Every check comes before the first write: a refused run leaves the
     # folder as it found it.
     out_dir = guards.check_output_dir(out_dir, what='synth output folder')
-    guards.check_memory(dataset_bytes(views, res, len(subsets)),
+    limits.check_memory(dataset_bytes(views, res, len(subsets)),
                         f'{views} views at {res}x{res}, {len(subsets)} subset(s)')
     mesh = obj.copy() if isinstance(obj, trimesh.Trimesh) else load_object(obj)
     if mesh.visual.kind != 'vertex':
@@ -330,45 +332,12 @@ def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path, ior, ambie
     return paths
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog='python -m reneus_mi.synth',
-        description='Render a synthetic ReNeuS dataset (object in a glass box, and without '
-                    "the box) with Mitsuba's path tracer.")
-    parser.add_argument('object', help=f"object name ({', '.join(OBJECTS)}) or a mesh file "
-                                       "readable by trimesh (centred and scaled like the others)")
-    parser.add_argument('-o', '--out', required=True, help='output folder')
-    parser.add_argument('--views', type=int, default=60, help='number of views (default 60)')
-    parser.add_argument('--res', type=int, default=800,
-                        help='image width and height in pixels (default 800)')
-    parser.add_argument('--spp', type=int, default=DEFAULT_SPP,
-                        help=f'samples per pixel (default {DEFAULT_SPP})')
-    parser.add_argument('--seed', type=int, default=0,
-                        help='seed of the camera poses and of the sample streams (default 0)')
-    parser.add_argument('--max-depth', type=int, default=DEFAULT_MAX_DEPTH,
-                        help=f'path length limit of the path tracer (default {DEFAULT_MAX_DEPTH})')
-    parser.add_argument('--margin', type=float, default=0.15,
-                        help="glass around the object, as a fraction of the object's largest "
-                             'half-extent (default 0.15)')
-    parser.add_argument('--container', choices=CONTAINERS, default='box',
-                        help='glass around the object: a block, a block with rounded edges or a '
-                             'cylinder jar (default box)')
-    parser.add_argument('--ior', type=float, default=IOR, help=f'IOR of the glass (default {IOR})')
-    parser.add_argument('--ambient', type=float, default=ENVIRONMENT,
-                        help=f'radiance of the uniform environment (default {ENVIRONMENT})')
-    parser.add_argument('--subsets', nargs='+', choices=SUBSETS, default=list(SUBSETS),
-                        help='subsets to render (default: both)')
-    args = parser.parse_args(argv)
-    with exit_on_error():
-        result = make_dataset(args.object, args.out, views=args.views, res=args.res,
-                              spp=args.spp, seed=args.seed, max_depth=args.max_depth,
-                              subsets=args.subsets, margin=args.margin, container=args.container,
-                              ior=args.ior, ambient=args.ambient)
-    print(f"wrote {os.path.abspath(args.out)}: {args.views} views at {args.res}x{args.res}, "
-          f"{result['spp']} spp, max_depth {result['max_depth']}, noise (per-pixel std inside "
-          f"the box, display units) {result['noise']:.4f}, {result['seconds']:.0f} s")
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())
+def demo_scene(folder: str, *, mode: str = 'reneus') -> str:
+    """Render the demo dataset into ``folder`` (once) and return its scene XML."""
+    data = os.path.join(folder, 'box')
+    if not os.path.isfile(os.path.join(data, 'transforms.json')):
+        print(f'rendering the demo dataset ({DEMO_OBJECT}, {DEMO_DATA["views"]} views) into {folder}')
+        make_dataset(DEMO_OBJECT, folder, subsets=('box',), **DEMO_DATA)
+    scene = os.path.join(folder, f'scene_{mode}.xml')
+    write_scene(load_dataset(data), scene, preset=DEMO_PRESET, mode=mode)
+    return scene

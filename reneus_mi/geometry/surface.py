@@ -1,42 +1,38 @@
-"""Surface extraction from a field and clean-up of the extracted mesh.
+"""The field's surface as a mesh: marching cubes and clean-up.
 
 The paper extracts the zero level set of the geometric MLP g_θ with Marching
 Cubes and keeps the connected component with the most vertices. That rule
 deletes real parts of multi-part objects (chair legs, a handle), so a second
 rule is offered: crop the mesh to the container, which removes the "fake walls"
 a field may grow on the glass without touching the object. Whoever reports
-numbers says which rule was used (:func:`postprocess`).
-
-The point-in-container test is a parity ray cast with Mitsuba, which needs no
-optional trimesh dependency (rtree, embree) and works for any closed container.
+numbers says which rule was used (:func:`postprocess`). :func:`field_mesh`
+does both in the world of a reconstruction.
 """
 from __future__ import annotations
-
-import os
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 import trimesh
 
+from reneus_mi import limits
 from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.fields.base import Field
+from reneus_mi.geometry.container import inside, load_container
+from reneus_mi.render.frame import FieldFrame
 
 #: Post-processing rules understood by :func:`postprocess`.
 POSTPROCESS_MODES = ('largest', 'crop', 'none')
-#: Mesh files the package reads.
-MESH_EXTENSIONS = ('.ply', '.obj', '.stl', '.off')
-
-# Directions of the parity rays in :func:`inside`: three independent, generic
-# directions, so that a ray grazing an edge or a vertex of the container (the
-# only way a parity count goes wrong) is outvoted by the other two.
-_RAY_DIRECTIONS = ((0.5366, 0.6104, 0.5826), (-0.7213, 0.2871, 0.6303), (0.1947, -0.8626, 0.4668))
+#: Bytes per grid point of marching cubes: the float32 SDF grid, skimage's
+#: working copies, the vertices and faces. Measured (peak RSS, a sphere,
+#: resolution 64 -> 384): 4.9; doubled and more for surfaces with more faces.
+BYTES_PER_GRID_POINT = 12
 
 
 def _triple(value, name: str) -> np.ndarray:
     arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,))
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name}={value!r}: expected finite numbers')
+        raise ReneusError(f'{name}={value!r}: expected finite numbers')
     return arr
 
 
@@ -51,13 +47,13 @@ def sdf_grid(field: Field, lo, hi, resolution, chunk: int = 2**18) -> np.ndarray
     """
     lo, hi = _triple(lo, 'lo'), _triple(hi, 'hi')
     if np.any(hi <= lo):
-        raise ValueError(f'box lo={lo.tolist()} hi={hi.tolist()}: expected lo < hi on every axis')
+        raise ReneusError(f'box lo={lo.tolist()} hi={hi.tolist()}: expected lo < hi on every axis')
     res = np.broadcast_to(np.asarray(resolution), (3,))
     if res.dtype.kind not in 'iu' or np.any(res < 2):
-        raise ValueError(f'resolution={resolution!r}: expected an int >= 2 or three of them')
+        raise ReneusError(f'resolution={resolution!r}: expected an int >= 2 or three of them')
     nx, ny, nz = (int(n) for n in res)
     if chunk < 1:
-        raise ValueError(f'chunk={chunk}: expected a positive number of points')
+        raise ReneusError(f'chunk={chunk}: expected a positive number of points')
     step = (hi - lo) / (res - 1)
     total = nx * ny * nz
     out = np.empty(total, dtype=np.float32)
@@ -107,7 +103,7 @@ def extract_mesh(field: Field, lo, hi, resolution=256, *, to_world=None) -> trim
     if to_world is not None:
         m = np.asarray(getattr(to_world, 'matrix', to_world), dtype=np.float64)
         if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-            raise ValueError(f'to_world: expected a finite 4x4 matrix, got shape {m.shape}')
+            raise ReneusError(f'to_world: expected a finite 4x4 matrix, got shape {m.shape}')
         verts = verts @ m[:3, :3].T + m[:3, 3]
         if np.linalg.det(m[:3, :3]) < 0:
             faces = faces[:, ::-1]
@@ -138,90 +134,6 @@ def _keep_faces(mesh: trimesh.Trimesh, mask: np.ndarray) -> trimesh.Trimesh:
     return out
 
 
-def signed_volume(vertices, faces) -> float:
-    """Volume enclosed by a closed triangle mesh, negative when its faces are wound inward.
-
-    The divergence theorem over the faces (each face with the origin spans a
-    tetrahedron): it needs no shared vertices, so flat-shaded meshes work.
-    """
-    v = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
-    return float(np.einsum('ij,ij->i', v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
-
-
-def check_container(container, name: str = 'container') -> None:
-    """Raise naming ``name`` unless ``container`` is a closed, outward-facing triangle mesh.
-
-    Inward normals would make the renderer take entering the glass for
-    leaving it (the specimen vanishes from the renders), so they are refused
-    rather than guessed at: the file itself must be fixed, because Mitsuba
-    reads the file, not this copy.
-    """
-    if not isinstance(container, trimesh.Trimesh) or len(container.faces) == 0:
-        raise ReneusError(f'{name}: expected a closed triangle mesh with faces, got {container!r}')
-    # Meshes written per face (e.g. for flat shading) duplicate vertices; the
-    # surface is still closed once they are merged.
-    merged = container.copy()
-    merged.merge_vertices()
-    if not merged.is_watertight:
-        raise ReneusError(f'{name}: container mesh is not closed (not watertight), so '
-                          'inside/outside is undefined; expected a mesh enclosing a volume')
-    volume = signed_volume(container.vertices, container.faces)
-    if not volume > 0.0:
-        raise ReneusError(f'{name}: container normals point inward (signed volume {volume:.4g}); '
-                          'expected outward normals: reverse the winding of its faces '
-                          '(trimesh: mesh.invert())')
-
-
-def inside(points, container: trimesh.Trimesh) -> np.ndarray:
-    """Boolean mask of the ``(N, 3)`` ``points`` that lie inside the closed ``container``.
-
-    A point is inside when a ray from it crosses the surface an odd number of
-    times; the answer is the majority over three ray directions.
-    """
-    check_container(container)
-    points = np.asarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f'points: expected an (N, 3) array, got shape {points.shape}')
-    if len(points) == 0:
-        return np.zeros(0, dtype=bool)
-
-    scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container)})
-
-    # Every crossing is a distinct face, so a ray that has not left the
-    # container after this many hits is stuck re-hitting one spot.
-    max_hits = len(container.faces) + 1
-    origin = mi.Point3f(*(points.T.astype(np.float32)))
-    votes = mi.UInt32(0)
-    for direction in _RAY_DIRECTIONS:
-        votes += _parity(scene, origin, mi.Vector3f(*direction), max_hits)
-    return np.asarray(votes) >= 2
-
-
-def mitsuba_mesh(mesh: trimesh.Trimesh, name: str = 'container') -> mi.Mesh:
-    """The triangles of ``mesh`` as a Mitsuba shape (for ray tests)."""
-    shape = mi.Mesh(name, len(mesh.vertices), len(mesh.faces))
-    params = mi.traverse(shape)
-    params['vertex_positions'] = mi.Float(np.ravel(mesh.vertices).astype(np.float32))
-    params['faces'] = mi.UInt32(np.ravel(mesh.faces).astype(np.uint32))
-    params.update()
-    return shape
-
-
-@dr.syntax
-def _parity(scene, origin, direction, max_hits):
-    """1 where a ray from ``origin`` along ``direction`` crosses ``scene`` an odd number of times."""
-    ray = mi.Ray3f(origin, dr.normalize(direction))
-    hits = mi.UInt32(0)
-    active = mi.Bool(True)
-    while active:
-        si = scene.ray_intersect(ray, active)
-        active &= si.is_valid() & (hits < max_hits)
-        hits = dr.select(active, hits + 1, hits)
-        # Lanes that stop here never read the ray again.
-        ray = si.spawn_ray(ray.d)
-    return hits & 1
-
-
 def crop(mesh: trimesh.Trimesh, container: trimesh.Trimesh) -> trimesh.Trimesh:
     """Remove the faces that have a vertex outside the closed ``container``."""
     if len(mesh.faces) == 0:
@@ -240,37 +152,34 @@ def postprocess(mesh: trimesh.Trimesh, mode: str, container: trimesh.Trimesh | N
         return largest_component(mesh)
     if mode == 'crop':
         if container is None:
-            raise ValueError("postprocess mode 'crop' needs a container mesh")
+            raise ReneusError("postprocess mode 'crop' needs a container mesh")
         return crop(mesh, container)
     if mode == 'none':
         return mesh.copy()
-    raise ValueError(f'postprocess mode {mode!r}: expected one of {", ".join(POSTPROCESS_MODES)}')
+    raise ReneusError(f'postprocess mode {mode!r}: expected one of {", ".join(POSTPROCESS_MODES)}')
 
 
-def load_mesh(path: str | os.PathLike, what: str = 'mesh') -> trimesh.Trimesh:
-    """Read a triangle mesh (.ply, .obj, .stl, .off); a clear error if that fails or it is empty.
+def field_mesh(field: Field, frame: FieldFrame, resolution: int, mode: str, container: str | None = None):
+    """The post-processed mesh of ``field`` in world coordinates.
 
-    The one mesh reader of the package; vertices are kept as stored (no
-    merging), so flat-shaded meshes keep their face normals.
+    Marching cubes runs over the container's box in the field's frame
+    (:meth:`FieldFrame.field_box`); ``container`` is the container mesh file,
+    needed by ``mode='crop'``.
     """
-    path = os.fspath(path)
-    ext = os.path.splitext(path)[1].lower()
-    if ext not in MESH_EXTENSIONS:
-        raise ReneusError(f"{path}: {what} file of unknown type {ext or '(none)'}; expected "
-                          f"{', '.join(MESH_EXTENSIONS)}")
-    if not os.path.isfile(path):
-        raise ReneusError(f'{path}: {what} file does not exist')
-    try:
-        mesh = trimesh.load(path, force='mesh', process=False)
-    except Exception as e:  # trimesh raises many kinds for unreadable files
-        raise ReneusError(f'{path}: cannot read the {what} ({type(e).__name__}: {e})') from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ReneusError(f'{path}: the {what} file holds no triangles')
-    return mesh
+    lo, hi = frame.field_box()
+    with dr.suspend_grad():
+        mesh = extract_mesh(field, lo, hi, resolution, to_world=frame.to_world_matrix())
+    if mode == 'crop':
+        if not container:
+            raise ReneusError("postprocess 'crop' needs the container mesh, and none is recorded")
+        return postprocess(mesh, mode, load_container(container))
+    return postprocess(mesh, mode, None)
 
 
-def load_container(path: str | os.PathLike) -> trimesh.Trimesh:
-    """Read a container mesh and check it (:func:`check_container`)."""
-    mesh = load_mesh(path, 'container mesh')
-    check_container(mesh, os.fspath(path))
-    return mesh
+def check_resolution(resolution: int, what: str = '--resolution') -> None:
+    """Refuse a grid below 8 per axis, past 32-bit indices or the machine's memory."""
+    if resolution < 8:
+        raise ReneusError(f'{what} {resolution}: expected >= 8')
+    points = resolution ** 3
+    limits.check_index_range(points, f'{what} {resolution}')
+    limits.check_memory(points * BYTES_PER_GRID_POINT, f'{what} {resolution}')

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from reneus_mi import guards
 from reneus_mi.config import ReconstructionConfig, from_dict, to_dict
 from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_write_text
+from reneus_mi.io import atomic_write_text, check_npz_file
 
 CONFIG_FILE, RESULT_FILE, CHECKPOINT_FILE = 'config.json', 'result.json', 'checkpoint.npz'
 
@@ -92,17 +92,28 @@ def write_spec(out: str, spec: RunSpec) -> None:
     atomic_write_text(os.path.join(out, CONFIG_FILE), json.dumps(spec.to_dict(), indent=2))
 
 
+def spec_of_scene(scene_path: str, data: str | None):
+    """The run of a scene XML: its integrator's model, its preset's training, its dataset."""
+    from reneus_mi.presets import preset
+    from reneus_mi.render.loading import load_scene, reneus_integrator
+    integrator = reneus_integrator(load_scene(scene_path), scene_path)
+    data = data or integrator.dataset
+    if not data:
+        raise ReneusError(f'{scene_path}: no dataset: give the integrator '
+                          '<string name="dataset" value="FOLDER"/> or pass --data')
+    if not os.path.isabs(data):
+        data = os.path.join(os.path.dirname(os.path.abspath(scene_path)), data)
+    config = ReconstructionConfig(model=integrator.model, train=preset(integrator.preset).train)
+    return RunSpec(scene_path, data, config, integrator.preset)
+
+
 def make_trainer(spec: RunSpec, out: str):
     """The scene, dataset and trainer of ``spec``; the integrator renders ``spec.config.model``."""
-    import reneus_mi  # noqa: F401  (variant, plugins)
     from reneus_mi.data import load_dataset
-    from reneus_mi.render.loading import load_scene
+    from reneus_mi.render.loading import load_scene, reneus_integrator
     from reneus_mi.train.trainer import Trainer
     scene = load_scene(spec.scene)
-    integrator = scene.integrator()
-    if not hasattr(integrator, 'render_rays'):
-        raise ReneusError(f'{spec.scene}: the integrator is {type(integrator).__name__}; '
-                          'expected <integrator type="reneus">')
+    integrator = reneus_integrator(scene, spec.scene)
     integrator.configure(with_refinement(spec.config).model)
     train = spec.config.train
     from reneus_mi.train.trainer import BUDGET_RANGE
@@ -143,7 +154,7 @@ def run(spec: RunSpec, out: str, *, resume: bool = False, progress: bool = True)
     with guards.RunLock(out):
         guards.remove_stray_temporaries(out)
         if resume:
-            guards.check_npz_file(trainer.checkpoint_path, 'checkpoint')
+            check_npz_file(trainer.checkpoint_path, 'checkpoint')
             trainer.resume()
         write_spec(out, spec)
         try:

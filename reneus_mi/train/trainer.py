@@ -46,7 +46,7 @@ from reneus_mi.extract import field_mesh, write_mesh
 from reneus_mi.fields import load_field
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.train.pixel_sampler import JITTER, PixelSampler, step_seed
-from reneus_mi.render.loading import write_image
+from reneus_mi.data.images import write_image
 from reneus_mi.variant import is_cuda
 
 #: Rays per kernel launch when rendering a whole view.
@@ -300,8 +300,8 @@ class Trainer:
         image, normals = self.render_view(view)
         both = np.concatenate([image, self.ds.images[view]], axis=1)
         os.makedirs(os.path.join(self.out, 'images'), exist_ok=True)
-        write_image(both, os.path.join(self.out, 'images', f'{self.iteration:06d}.png'))
-        write_image(normals * 0.5 + 0.5, os.path.join(self.out, 'images', f'{self.iteration:06d}_normal.png'))
+        write_image(os.path.join(self.out, 'images', f'{self.iteration:06d}.png'), both)
+        write_image(os.path.join(self.out, 'images', f'{self.iteration:06d}_normal.png'), normals * 0.5 + 0.5)
         try:
             self.write_mesh(os.path.join(self.out, 'meshes', f'{self.iteration:06d}.ply'), resolution=64)
         except NoSurfaceError as e:

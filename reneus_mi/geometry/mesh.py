@@ -1,0 +1,65 @@
+"""Triangle meshes in and out, and the few properties the package measures on them.
+
+:func:`load_mesh` is the package's one mesh reader, :func:`write_mesh` its one
+writer (atomic); :func:`mitsuba_mesh` hands a mesh to Mitsuba for ray tests.
+"""
+from __future__ import annotations
+
+import os
+
+import mitsuba as mi
+import numpy as np
+import trimesh
+
+from reneus_mi.errors import ReneusError
+from reneus_mi.io import atomic_export
+
+#: Mesh files the package reads.
+MESH_EXTENSIONS = ('.ply', '.obj', '.stl', '.off')
+
+
+def load_mesh(path: str | os.PathLike, what: str = 'mesh') -> trimesh.Trimesh:
+    """Read a triangle mesh (.ply, .obj, .stl, .off); a clear error if that fails or it is empty.
+
+    Vertices are kept as stored (no merging), so flat-shaded meshes keep their
+    face normals.
+    """
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in MESH_EXTENSIONS:
+        raise ReneusError(f"{path}: {what} file of unknown type {ext or '(none)'}; expected "
+                          f"{', '.join(MESH_EXTENSIONS)}")
+    if not os.path.isfile(path):
+        raise ReneusError(f'{path}: {what} file does not exist')
+    try:
+        mesh = trimesh.load(path, force='mesh', process=False)
+    except Exception as e:  # trimesh raises many kinds for unreadable files
+        raise ReneusError(f'{path}: cannot read the {what} ({type(e).__name__}: {e})') from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ReneusError(f'{path}: the {what} file holds no triangles')
+    return mesh
+
+
+def write_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike) -> None:
+    """Export atomically (the format follows the extension)."""
+    atomic_export(mesh, path)
+
+
+def signed_volume(vertices, faces) -> float:
+    """Volume enclosed by a closed triangle mesh, negative when its faces are wound inward.
+
+    The divergence theorem over the faces (each face with the origin spans a
+    tetrahedron): it needs no shared vertices, so flat-shaded meshes work.
+    """
+    v = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    return float(np.einsum('ij,ij->i', v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+
+
+def mitsuba_mesh(mesh: trimesh.Trimesh, name: str = 'container') -> mi.Mesh:
+    """The triangles of ``mesh`` as a Mitsuba shape (for ray tests)."""
+    shape = mi.Mesh(name, len(mesh.vertices), len(mesh.faces))
+    params = mi.traverse(shape)
+    params['vertex_positions'] = mi.Float(np.ravel(mesh.vertices).astype(np.float32))
+    params['faces'] = mi.UInt32(np.ravel(mesh.faces).astype(np.uint32))
+    params.update()
+    return shape
