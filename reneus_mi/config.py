@@ -23,6 +23,7 @@ import math
 import typing
 from dataclasses import dataclass
 
+from reneus_mi.data.container import CREASE_ANGLE
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
 from reneus_mi.fields import FIELD_CONFIGS, FieldConfig, NeuSFieldConfig
 from reneus_mi.ray_samplers import SamplerConfig
@@ -59,12 +60,18 @@ class RenderConfig:
     container_pose: bool = False
     """Give the container a pose and per-axis scale (container.translation, .rotation,
     .log_scale), starting at the scene's placement."""
+    crease_angle: float = CREASE_ANGLE
+    """Container faces meeting at more than this angle (degrees) are not smoothed together:
+    each side bends light by its own faces (a box stays a box however its file was written);
+    smoother surfaces use the file's stored normals, or the mean of their faces' normals."""
 
     def __post_init__(self):
         check_choice(self, 'mode', MODES)
         check_choice(self, 'terminal', TERMINALS)
         check_choice(self, 'light', LIGHTS)
         check_numbers(self, at_least_zero=('max_depth', 'rr_threshold'), positive=('gamma',))
+        if not 0.0 <= self.crease_angle <= 180.0:
+            raise ReneusError(f'crease_angle={self.crease_angle}: expected degrees in [0, 180]')
 
 
 @dataclass
