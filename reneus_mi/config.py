@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 from reneus_mi.data.container import CREASE_ANGLE
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
+from reneus_mi.mesh import POSTPROCESS_MODES
 from reneus_mi.fields import FIELD_CONFIGS, FieldConfig, NeuSFieldConfig
 from reneus_mi.ray_samplers import SamplerConfig
 from reneus_mi.surroundings import LIGHTS
@@ -126,9 +127,10 @@ class TrainConfig:
     """Steps between checkpoints (written atomically; --resume continues from the last)."""
     mesh_resolution: int = 256
     """Marching-cubes grid resolution of the final mesh."""
-    postprocess: str = 'largest'
-    """Mesh post-processing: 'largest' (keep the largest connected component, the paper),
-    'crop' (drop what lies outside the container) or 'none'."""
+    postprocess: str = 'clean'
+    """Mesh post-processing: 'clean' (drop floating fragments, keep parts that noise cut off
+    next to the body), 'largest' (keep the largest connected component: the paper), 'crop'
+    (drop what lies outside the container) or 'none'."""
     divergence_factor: float = 50.0
     """Stop when the loss exceeds this multiple of its lowest value so far (after warm-up)."""
     refine_ior: bool = False
@@ -162,7 +164,7 @@ class TrainConfig:
                                      'validation_view', 'trans_weight', 'eikonal_weight',
                                      'learning_rate_alpha', 'max_minutes', 'seed', 'refine_after',
                                      'silhouette_weight'))
-        check_choice(self, 'postprocess', ('largest', 'crop', 'none'))
+        check_choice(self, 'postprocess', POSTPROCESS_MODES)
         check_choice(self, 'refine_light', ('none',) + LIGHTS[1:])
         lo, hi = self.ior_range
         if not 1.0 < lo < hi:
