@@ -89,7 +89,8 @@ def run(args) -> str:
         from reneus_mi.geometry.chamfer import chamfer
         from reneus_mi.geometry.mesh import load_mesh
         c = chamfer(load_mesh(result['mesh']), load_mesh(gt))
-        lines.append(f"Chamfer-L1 x100 to the ground truth: {c['chamfer']:.3f} (postprocess {cfg.postprocess})")
+        lines.append(f"Chamfer-L1 x100 to the ground truth: {c['chamfer']:.3f} (postprocess {cfg.postprocess}, "
+                     f"{result['components']} component(s))")
     return '\n'.join(lines)
 
 

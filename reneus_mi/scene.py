@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> None:
             settings = {'preset': args.preset, **typed_settings(args.settings, args.preset)}
         else:  # another plugin's settings: typed by their look
             settings = {key: _literal(text) for key, text in args.settings}
-        write_scene(ds, args.output, integrator=args.integrator, **settings)
+        write_scene(ds, args.output, integrator=args.integrator, overwrite=args.overwrite, **settings)
 
 
 if __name__ == '__main__':

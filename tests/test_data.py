@@ -10,7 +10,7 @@ import trimesh
 
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import intrinsics, look_at
-from reneus_mi.geometry.container import container_masks
+from reneus_mi.data.masks import container_masks
 from reneus_mi.data.images import read_image, write_image
 
 H, W = 12, 16

@@ -10,7 +10,7 @@ from scipy.ndimage import binary_dilation
 
 import reneus_mi  # noqa: F401  (sets the variant)
 from reneus_mi.data import load_dataset, objects, synth
-from reneus_mi.geometry.container import container_masks
+from reneus_mi.data.masks import container_masks
 from reneus_mi.synth import main as synth_main
 
 BACKGROUND = synth.ENVIRONMENT ** (1.0 / synth.GAMMA)

@@ -42,8 +42,9 @@ from reneus_mi.train import checkpoint, losses
 from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
 from reneus_mi.errors import NoSurfaceError, ReneusError
-from reneus_mi.extract import field_mesh, write_mesh
 from reneus_mi.fields import load_field
+from reneus_mi.geometry.mesh import write_mesh
+from reneus_mi.geometry.surface import components, field_mesh
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.train.pixel_sampler import JITTER, PixelSampler, step_seed
 from reneus_mi.data.images import write_image
@@ -364,7 +365,7 @@ class Trainer:
         if cfg.refine_pose:
             result['container'] = self.write_container(os.path.join(self.out, 'container_refined.ply'))
         try:
-            self.write_mesh(mesh_path)
+            result['components'] = components(self.write_mesh(mesh_path))
         except NoSurfaceError as e:
             # A run never ends without its mesh file: an empty one, and the reason.
             write_mesh(trimesh.Trimesh(), mesh_path)
