@@ -7,7 +7,7 @@ settings that override it: mode, D_re, samples, field); the integrator's
 overrides it; ``python -m reneus_mi.scene DATA -o scene.xml --preset cpu``
 writes such a scene). Training settings start from the same preset; the
 options below override them. Results go to the output folder (see
-:mod:`reneus_mi.train.trainer`); ``--resume`` continues a killed run from its
+:mod:`reneus_mi.train.run_folder`); ``--resume`` continues a killed run from its
 ``config.json``. ``--demo`` reconstructs the embedded demo: a small dataset of
 an insect (thin legs) in a glass block that it first renders with Mitsuba's path tracer.
 """
@@ -44,15 +44,16 @@ def main(argv=None) -> int:
 
 
 def run(args) -> str:
-    from reneus_mi import guards
+    from reneus_mi.config import replace
     from reneus_mi.data.synth import demo_scene
     from reneus_mi.train import runs
-    from reneus_mi.config import replace
+    from reneus_mi.train.run_folder import RunFolder, recent_psnr
     if args.scene is None and not args.demo and not args.resume:
         raise ReneusError('no scene given: pass a scene XML (python -m reneus_mi.scene DATA -o '
                           'scene.xml writes one), or --demo for the embedded demo')
     name = 'demo' if args.demo else os.path.splitext(os.path.basename(args.scene or ''))[0]
     out = args.output or os.path.join('runs', name)
+    folder = RunFolder(out)
     if args.resume:
         spec = runs.read_spec(out)
         if args.scene:
@@ -61,10 +62,11 @@ def run(args) -> str:
         if args.data:
             spec = spec.with_data(os.path.abspath(args.data))
     else:
-        if os.path.isfile(os.path.join(out, runs.CHECKPOINT_FILE)):
-            raise ReneusError(f'{out} already holds a run; continue it with --resume or choose '
+        state = folder.state()
+        if state.name != 'new':
+            raise ReneusError(f'{out} already holds a run ({state}); continue it with --resume or choose '
                               'another --output')
-        guards.check_run_dir(out, inputs=[args.scene, args.data])
+        folder.check(inputs=[args.scene, args.data])
         # The demo's photographs go beside the run folder: no run ever writes where its inputs are.
         scene = demo_scene(os.path.abspath(out).rstrip(os.sep) + '_data') if args.demo else args.scene
         spec = runs.spec_of_scene(scene, args.data)
@@ -78,11 +80,11 @@ def run(args) -> str:
              if result['stopped_by_budget'] else f"done: {result['iterations']} iterations")
     psnr = result['psnr']
     if psnr != psnr:  # no step ran (a finished run resumed): the log has the figure
-        psnr = guards.recent_psnr(guards.read_log(os.path.join(out, 'log.jsonl'))) or float('nan')
+        psnr = recent_psnr(folder.read_log()) or float('nan')
     lines = [f"{ended} in {result['seconds']:.0f} s"
              + (f", PSNR {psnr:.2f} dB (last 100 steps)" if psnr == psnr else '')
              + f"; mesh {result['mesh']}"
-             + (f"; renders {os.path.join(out, 'images')}" if cfg.validate_every else '')]
+             + (f"; renders {folder.images}" if cfg.validate_every else '')]
     from reneus_mi.data import load_dataset
     gt = load_dataset(spec.data, need_container=False).gt_mesh
     if gt:

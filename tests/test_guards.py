@@ -11,7 +11,10 @@ import pytest
 
 from reneus_mi import guards, limits
 from reneus_mi.errors import ReneusError, exit_on_error, user_message
+from reneus_mi.data.dataset import check_same_dataset, dataset_fingerprint
 from reneus_mi.io import atomic_path, atomic_write_text, check_npz_file
+from reneus_mi.train.run_folder import RunFolder, recent_psnr
+from reneus_mi.train.trainer import training_bytes
 
 
 def dataset_folder(path):
@@ -62,12 +65,12 @@ def test_run_dir(tmp_path):
     run.mkdir()
     for name in ('config.json', 'log.jsonl', '.tmp-x.npz'):
         (run / name).write_text('')
-    guards.check_run_dir(run)            # a run killed before its first checkpoint
+    RunFolder(run).check()            # a run killed before its first checkpoint
     (run / 'checkpoint.npz').write_text('')
     with pytest.raises(ReneusError, match='holds checkpoint.npz'):
-        guards.check_run_dir(run)
+        RunFolder(run).check()
     (run / 'notes.txt').write_text('')
-    guards.check_run_dir(run, resume=True)
+    RunFolder(run).check(resume=True)
 
 
 def test_memory_and_indices():
@@ -81,23 +84,41 @@ def test_memory_and_indices():
 
 
 def test_training_bytes_is_a_floor_of_the_measured_cost():
-    # Measured: 96 B per sample slot (see guards.BYTES_PER_SAMPLE_SLOT).
-    assert guards.training_bytes(32768 - 1024, 16, 3) < (407176 - 263352) * 1024
-    assert guards.training_bytes(2048, 16, 3) == 2 * guards.training_bytes(1024, 16, 3)
+    # Measured: 96 B per sample slot (see trainer.BYTES_PER_SAMPLE_SLOT).
+    assert training_bytes(32768 - 1024, 16, 3) < (407176 - 263352) * 1024
+    assert training_bytes(2048, 16, 3) == 2 * training_bytes(1024, 16, 3)
 
 
 def test_run_lock(tmp_path):
-    with guards.RunLock(tmp_path):
+    with RunFolder(tmp_path).lock():
         assert (tmp_path / '.lock').read_text() == str(os.getpid())
         with pytest.raises(ReneusError, match=f'in use by process {os.getpid()}'):
-            guards.RunLock(tmp_path).acquire()
+            RunFolder(tmp_path).lock().acquire()
     assert not (tmp_path / '.lock').exists()
     # A lock left by a killed process is taken over.
     dead = subprocess.run([sys.executable, '-c', 'import os; print(os.getpid())'],
                           capture_output=True, text=True).stdout.strip()
     (tmp_path / '.lock').write_text(dead)
-    with guards.RunLock(tmp_path):
+    with RunFolder(tmp_path).lock():
         assert (tmp_path / '.lock').read_text() == str(os.getpid())
+
+
+def test_run_state_is_read_from_disk(tmp_path):
+    folder = RunFolder(tmp_path / 'run')
+    assert folder.state().name == 'new'
+    os.makedirs(folder.path)
+    (tmp_path / 'run' / 'config.json').write_text('{}')
+    assert folder.state().name == 'new'                  # killed before its first checkpoint
+    (tmp_path / 'run' / 'checkpoint.npz').write_text('')
+    assert folder.state().name == 'resumable'
+    with folder.lock():
+        assert str(folder.state()) == f'running (process {os.getpid()})'
+    folder.write_result({'iterations': 3})
+    assert folder.state().name == 'finished' and folder.read_result() == {'iterations': 3}
+    folder.write_result({'failure': 'step 2: the loss is nan'})
+    assert str(folder.state()) == 'failed (step 2: the loss is nan)'
+    folder.clear_result()
+    assert folder.state().name == 'resumable'
 
 
 def _log(path, steps, torn=False):
@@ -108,17 +129,17 @@ def _log(path, steps, torn=False):
 def test_repair_log(tmp_path):
     path = tmp_path / 'log.jsonl'
     _log(path, range(1, 9), torn=True)
-    entries = guards.repair_log(path, 6)
+    entries = RunFolder(tmp_path).repair_log(6)
     assert [e['iteration'] for e in entries] == list(range(1, 7))
     assert [json.loads(line)['iteration'] for line in path.read_text().splitlines()] == list(range(1, 7))
     _log(path, [1, 2, 5, 6])
     with pytest.warns(UserWarning, match=r'no log line for 2 of the 6 steps .* \[3, 4\]'):
-        guards.repair_log(path, 6)
+        RunFolder(tmp_path).repair_log(6)
     path.write_text('{"iteration": 1}\ngarbage\n{"iteration": 2}\n')
     with pytest.raises(ReneusError, match="line 2 is not a log entry"):
-        guards.repair_log(path, 2)
-    assert guards.recent_psnr([{'psnr': 10.0}, {'psnr': 20.0}, {'psnr': 30.0}], n=2) == 25.0
-    assert guards.recent_psnr([]) is None
+        RunFolder(tmp_path).repair_log(2)
+    assert recent_psnr([{'psnr': 10.0}, {'psnr': 20.0}, {'psnr': 30.0}], n=2) == 25.0
+    assert recent_psnr([]) is None
 
 
 def test_npz_file(tmp_path):
@@ -143,7 +164,7 @@ def test_stray_temporaries(tmp_path):
     assert os.listdir(tmp_path) == []
     (tmp_path / '.tmp-abc.npz').write_bytes(b'left by SIGKILL')
     atomic_write_text(tmp_path / 'log.jsonl', '')
-    assert guards.remove_stray_temporaries(tmp_path) == ['.tmp-abc.npz']
+    assert RunFolder(tmp_path).remove_stray_temporaries() == ['.tmp-abc.npz']
     assert os.listdir(tmp_path) == ['log.jsonl']
 
 
@@ -154,23 +175,17 @@ def test_dataset_fingerprint():
 
         def __len__(self):
             return 2
-    saved = guards.dataset_fingerprint(DS())
-    guards.check_same_dataset(saved, DS(), 'config.json')
+    saved = dataset_fingerprint(DS())
+    check_same_dataset(saved, DS(), 'config.json')
     other = DS()
     other.names = ['a.png', 'c.png']
     with pytest.raises(ReneusError, match=r"differs from the run's \(names"):
-        guards.check_same_dataset(saved, other, 'config.json')
+        check_same_dataset(saved, other, 'config.json')
     moved = DS()
     moved.c2w = moved.c2w.copy()
     moved.c2w[1, 0, 3] = 0.5
     with pytest.raises(ReneusError, match='other camera positions'):
-        guards.check_same_dataset(saved, moved, 'config.json')
-
-
-def test_keys():
-    guards.check_keys({'a': 1}, ['a', 'b'], 'where')
-    with pytest.raises(ReneusError, match=r"where: unknown key\(s\) 'c'; expected some of a, b"):
-        guards.check_keys({'a': 1, 'c': 2}, ['a', 'b'], 'where')
+        check_same_dataset(saved, moved, 'config.json')
 
 
 def test_exit_on_error_is_one_line():

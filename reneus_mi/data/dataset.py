@@ -118,6 +118,35 @@ class Dataset:
             check_ior(self.ior, f"{self.root}: ior")
 
 
+
+def dataset_fingerprint(ds) -> dict:
+    """What identifies a dataset's views: their number, size, names and camera centres.
+
+    Stored with a run, it lets ``--resume --data MOVED`` check that the moved
+    folder holds the same photographs and cameras.
+    """
+    return {'views': len(ds), 'width': ds.width, 'height': ds.height, 'names': list(ds.names),
+            'centres': [[round(float(x), 5) for x in c] for c in ds.c2w[:, :3, 3]]}
+
+
+def check_same_dataset(saved: dict, ds, where: str) -> None:
+    """Refuse ``ds`` unless it matches the fingerprint ``saved`` of a run's dataset."""
+    now = dataset_fingerprint(ds)
+    for key in ('views', 'width', 'height', 'names'):
+        if saved.get(key) != now[key]:
+            raise ReneusError(f'{where}: dataset {ds.root} differs from the run\'s ({key}: '
+                              f'{_short(now[key])}, the run had {_short(saved.get(key))}); '
+                              'expected the same photographs')
+    if not np.allclose(saved['centres'], now['centres'], atol=1e-4):
+        raise ReneusError(f"{where}: dataset {ds.root} has other camera positions than the run's; "
+                          'expected the same cameras')
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + '...'
+
+
 def read_extras(meta: dict, root: str, where: str) -> dict:
     """Parse the ReNeuS keys of a metadata dict (see the module docstring)."""
     out = {}

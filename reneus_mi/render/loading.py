@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import os
 
-
 import mitsuba as mi
+import numpy as np
 
 from reneus_mi import limits
 from reneus_mi.errors import ReneusError, user_message
@@ -55,3 +55,20 @@ def check_render_size(scene: mi.Scene, spp: int, where: str) -> None:
     spp = spp or sensor.sampler().sample_count()
     limits.check_index_range(w * h * spp, f'{where}: {w}x{h} pixels at {spp} spp')
     limits.check_memory(w * h * spp * BYTES_PER_SAMPLE, f'{where}: {w}x{h} pixels at {spp} spp')
+
+
+def check_field_reaches(center, scale: float, lo, hi, where: str) -> None:
+    """Refuse a field sphere (``center``, radius ``scale``) that misses the box ``[lo, hi]``.
+
+    The field lives in that sphere and the rays that matter run inside the
+    container: if the two do not meet, no ray reaches the field and training
+    has nothing to fit.
+    """
+    c, lo, hi = (np.asarray(v, dtype=np.float64) for v in (center, lo, hi))
+    gap = float(np.linalg.norm(np.maximum(lo - c, 0.0) + np.maximum(c - hi, 0.0)))
+    if not scale > 0 or gap >= scale:
+        raise ReneusError(f'{where}: the field sphere (centre {np.round(c, 4).tolist()}, radius '
+                          f'{scale:.4g}) does not meet the container (bounds {np.round(lo, 4).tolist()}'
+                          f' .. {np.round(hi, 4).tolist()}), so no ray would reach the field; '
+                          'expected field_center/field_scale around the container (python -m '
+                          'reneus_mi.scene writes them)')

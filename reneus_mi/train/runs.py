@@ -2,25 +2,23 @@
 
 A :class:`RunSpec` is everything a run is made of: the scene (container,
 light), the dataset and the whole :class:`~reneus_mi.config.ReconstructionConfig`.
-:func:`run` trains one in its folder and writes ``config.json`` (the spec,
-which rebuilds the run: :func:`read_spec`) and ``result.json``;
-:func:`run_many` goes through a collection, skipping finished runs and
-resuming killed ones, so that a batch of specimens (or a benchmark table) can
-be interrupted and started again at no cost.
+:func:`run` trains one in its folder (:class:`~reneus_mi.train.run_folder.RunFolder`)
+and writes ``config.json`` (the spec, which rebuilds the run: :func:`read_spec`)
+and ``result.json``; :func:`run_many` goes through a collection by the state of
+each folder, skipping finished runs and resuming killed ones, so that a batch
+of specimens (or a benchmark table) can be interrupted and started again at no
+cost.
 """
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from dataclasses import dataclass
 
-from reneus_mi import guards
 from reneus_mi.config import ReconstructionConfig, from_dict, to_dict
 from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_write_text, check_npz_file
-
-CONFIG_FILE, RESULT_FILE, CHECKPOINT_FILE = 'config.json', 'result.json', 'checkpoint.npz'
+from reneus_mi.io import check_npz_file
+from reneus_mi.train.run_folder import RunFolder
 
 
 @dataclass
@@ -69,27 +67,17 @@ class RunSpec:
     def with_data(self, data: str) -> 'RunSpec':
         """The run on the dataset in ``data``, which must be the one it was started on (moved)."""
         from reneus_mi.data import load_dataset
+        from reneus_mi.data.dataset import check_same_dataset
         if self.data_fingerprint is not None:
-            guards.check_same_dataset(self.data_fingerprint, load_dataset(data, need_container=False),
-                                      f'--data {data}: not the dataset this run was started on')
+            check_same_dataset(self.data_fingerprint, load_dataset(data, need_container=False),
+                               f'--data {data}: not the dataset this run was started on')
         return dataclasses.replace(self, data=data)
 
 
 def read_spec(out: str) -> RunSpec:
     """The spec recorded in a run folder's ``config.json``."""
-    path = os.path.join(out, CONFIG_FILE)
-    try:
-        with open(path) as f:
-            values = json.load(f)
-    except FileNotFoundError:
-        raise ReneusError(f'{out}: nothing to resume (no {CONFIG_FILE})') from None
-    except (OSError, ValueError) as e:
-        raise ReneusError(f'{path}: unreadable ({e})') from None
-    return RunSpec.from_dict(values, path)
-
-
-def write_spec(out: str, spec: RunSpec) -> None:
-    atomic_write_text(os.path.join(out, CONFIG_FILE), json.dumps(spec.to_dict(), indent=2))
+    folder = RunFolder(out)
+    return RunSpec.from_dict(folder.read_config(), folder.config)
 
 
 def spec_of_scene(scene_path: str, data: str | None):
@@ -110,21 +98,21 @@ def spec_of_scene(scene_path: str, data: str | None):
 def make_trainer(spec: RunSpec, out: str):
     """The scene, dataset and trainer of ``spec``; the integrator renders ``spec.config.model``."""
     from reneus_mi.data import load_dataset
-    from reneus_mi.render.loading import load_scene, reneus_integrator
-    from reneus_mi.train.trainer import Trainer
+    from reneus_mi.data.dataset import dataset_fingerprint
+    from reneus_mi.render.loading import check_field_reaches, load_scene, reneus_integrator
+    from reneus_mi.train.trainer import BUDGET_RANGE, Trainer, check_batch
     scene = load_scene(spec.scene)
     integrator = reneus_integrator(scene, spec.scene)
     integrator.configure(with_refinement(spec.config).model)
     train = spec.config.train
-    from reneus_mi.train.trainer import BUDGET_RANGE
-    guards.check_batch(train.batch_rays * (BUDGET_RANGE if train.sample_budget else 1), spec.config.model,
-                       '--batch-rays' + (' (x8: the largest batch under --sample-budget)' if train.sample_budget else ''))
+    check_batch(train.batch_rays * (BUDGET_RANGE if train.sample_budget else 1), spec.config.model,
+                '--batch-rays' + (' (x8: the largest batch under --sample-budget)' if train.sample_budget else ''))
     dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus')
     if spec.data_fingerprint is None:
-        spec.data_fingerprint = guards.dataset_fingerprint(dataset)
+        spec.data_fingerprint = dataset_fingerprint(dataset)
     frame = integrator.frame_of(scene)
     if frame.bounds is not None:
-        guards.check_field_reaches(frame.center, frame.scale, *frame.bounds, spec.scene)
+        check_field_reaches(frame.center, frame.scale, *frame.bounds, spec.scene)
     if spec.mesh_bounds is not None:
         frame = dataclasses.replace(frame, bounds=spec.mesh_bounds)
     return Trainer(scene, dataset, spec.config.train, out, frame=frame)
@@ -148,40 +136,40 @@ def with_refinement(config: ReconstructionConfig) -> ReconstructionConfig:
 def run(spec: RunSpec, out: str, *, resume: bool = False, progress: bool = True) -> dict:
     """Train ``spec`` in folder ``out`` (continuing its checkpoint with ``resume``); return the result."""
     from reneus_mi.train.trainer import TrainingError
-    guards.check_run_dir(out, inputs=[spec.scene, spec.data], resume=resume)
+    folder = RunFolder(out)
+    folder.check(inputs=[spec.scene, spec.data], resume=resume)
     trainer = make_trainer(spec, out)
     os.makedirs(out, exist_ok=True)
-    with guards.RunLock(out):
-        guards.remove_stray_temporaries(out)
+    with folder.lock():
+        folder.remove_stray_temporaries()
         if resume:
-            check_npz_file(trainer.checkpoint_path, 'checkpoint')
+            check_npz_file(folder.checkpoint, 'checkpoint')
             trainer.resume()
-        write_spec(out, spec)
+        folder.clear_result()
+        folder.write_config(spec.to_dict())
         try:
             result = trainer.run(progress=progress)
         except TrainingError as e:
             result = {'failure': str(e), 'iterations': trainer.iteration}
-        atomic_write_text(os.path.join(out, RESULT_FILE), json.dumps(result, indent=2))
+        folder.write_result(result)
     return result
 
 
 def run_many(specs: dict[str, RunSpec], root: str, *, progress: bool = False) -> dict[str, dict]:
-    """Run each spec in ``root/<name>``: a finished run is read back, a killed one resumed.
+    """Run each spec in ``root/<name>`` by its folder's state: a finished (or failed) run is
+    read back, a killed one resumed, a new one started.
 
     A folder whose recorded spec differs from the one asked for is an error
     (choose another root), never silently overwritten.
     """
     results = {}
     for name, spec in specs.items():
-        out = os.path.join(root, name)
-        done = os.path.join(out, RESULT_FILE)
-        started = os.path.isfile(os.path.join(out, CONFIG_FILE))
-        if started and not read_spec(out).same_run(spec):
-            raise ReneusError(f'{out}: holds a run with other settings; choose another folder')
-        if os.path.isfile(done):
-            with open(done) as f:
-                results[name] = json.load(f)
+        folder = RunFolder(os.path.join(root, name))
+        if os.path.isfile(folder.config) and not read_spec(folder.path).same_run(spec):
+            raise ReneusError(f'{folder.path}: holds a run with other settings; choose another folder')
+        state = folder.state()
+        if state.name in ('finished', 'failed'):
+            results[name] = folder.read_result()
             continue
-        results[name] = run(spec, out, resume=os.path.isfile(os.path.join(out, CHECKPOINT_FILE)),
-                            progress=progress)
+        results[name] = run(spec, folder.path, resume=state.name == 'resumable', progress=progress)
     return results

@@ -1,0 +1,289 @@
+"""A run's folder: the one place that knows its files, its lock, its log, its result and its state.
+
+A reconstruction lives in one folder::
+
+    config.json             the whole configuration and where the scene and data came from
+    log.jsonl               one line every log_every steps: losses by name, PSNR, learning
+                            rate, s, rays/s, and the refined IOR, pose and light
+    checkpoint.npz          the latest checkpoint (atomic; --resume continues from it)
+    images/                 validation renders (image | photograph) and normal maps
+    meshes/                 mesh snapshots (64^3) at validation steps
+    mesh.ply                the final mesh, in the dataset's world coordinates
+    container_refined.ply   the container at its refined pose (train.refine.pose)
+    result.json             what the run reports when it ends (or why it failed)
+    .lock                   the process that drives the run
+
+:meth:`RunFolder.state` reads from disk, in any process, what the folder holds:
+``new`` (nothing to continue), ``running`` (a live process holds its lock),
+``resumable`` (a checkpoint and no result: a killed run), ``finished`` or
+``failed`` (a result, with the reason). That is what a batch of runs needs to
+skip, continue or report each one.
+"""
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from dataclasses import dataclass
+
+from reneus_mi import guards
+from reneus_mi.errors import ReneusError
+from reneus_mi.io import atomic_write_text, is_temporary
+
+#: The states of a run folder, as :meth:`RunFolder.state` names them.
+STATES = ('new', 'running', 'resumable', 'finished', 'failed')
+
+
+@dataclass(frozen=True)
+class RunState:
+    """What a run folder holds: one of :data:`STATES`, and why (a failure, the lock's owner)."""
+    name: str
+    reason: str = ''
+
+    def __str__(self) -> str:
+        return f'{self.name} ({self.reason})' if self.reason else self.name
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """The folder of one run and the names of what it holds."""
+
+    path: str
+
+    CONFIG = 'config.json'
+    LOG = 'log.jsonl'
+    CHECKPOINT = 'checkpoint.npz'
+    IMAGES = 'images'
+    MESHES = 'meshes'
+    MESH = 'mesh.ply'
+    CONTAINER = 'container_refined.ply'
+    RESULT = 'result.json'
+    LOCK = '.lock'
+    #: Everything a run writes.
+    FILES = (CONFIG, LOG, CHECKPOINT, IMAGES, MESHES, MESH, CONTAINER, RESULT, LOCK)
+
+    def __post_init__(self):
+        object.__setattr__(self, 'path', os.fspath(self.path))
+
+    def file(self, name: str) -> str:
+        return os.path.join(self.path, name)
+
+    @property
+    def config(self) -> str:
+        return self.file(self.CONFIG)
+
+    @property
+    def log(self) -> str:
+        return self.file(self.LOG)
+
+    @property
+    def checkpoint(self) -> str:
+        return self.file(self.CHECKPOINT)
+
+    @property
+    def images(self) -> str:
+        return self.file(self.IMAGES)
+
+    @property
+    def meshes(self) -> str:
+        return self.file(self.MESHES)
+
+    @property
+    def mesh(self) -> str:
+        return self.file(self.MESH)
+
+    @property
+    def container(self) -> str:
+        return self.file(self.CONTAINER)
+
+    @property
+    def result(self) -> str:
+        return self.file(self.RESULT)
+
+    # ------------------------------------------------------------- checks
+    def check(self, *, inputs=(), resume: bool = False) -> str:
+        """Check the folder before a run writes into it; return its absolute path.
+
+        Apart from the inputs and any dataset folder
+        (:func:`~reneus_mi.guards.check_output_dir`); a new run needs a new or
+        empty folder, or one holding only what a run writes without its
+        checkpoint (a run killed before its first one, which starts over);
+        ``resume`` accepts whatever the run folder holds.
+        """
+        present = os.listdir(self.path) if os.path.isdir(self.path) else []
+        allow = present if resume else [n for n in present
+                                        if (n in self.FILES and n != self.CHECKPOINT) or is_temporary(n)]
+        return guards.check_output_dir(self.path, inputs=inputs, allow=allow, what='output folder')
+
+    def lock(self) -> 'RunLock':
+        """The folder's lock (a context manager): one process drives a run."""
+        return RunLock(self.file(self.LOCK))
+
+    def remove_stray_temporaries(self) -> list[str]:
+        """Delete the temporaries an atomic write left behind when it was killed."""
+        removed = []
+        if os.path.isdir(self.path):
+            for name in os.listdir(self.path):
+                if is_temporary(name):
+                    os.unlink(self.file(name))
+                    removed.append(name)
+        return removed
+
+    # -------------------------------------------------------------- state
+    def state(self) -> RunState:
+        """What the folder holds, read from disk (see the module docstring)."""
+        if not os.path.isdir(self.path):
+            return RunState('new')
+        owner = self.lock().owner()
+        if owner is not None:
+            return RunState('running', f'process {owner}')
+        result = self.read_result()
+        if result is not None:
+            failure = result.get('failure')
+            return RunState('failed', str(failure)) if failure else RunState('finished')
+        if os.path.isfile(self.checkpoint):
+            return RunState('resumable')
+        return RunState('new')
+
+    # ----------------------------------------------------- config, result
+    def read_config(self) -> dict:
+        """The run's recorded configuration (``config.json``)."""
+        try:
+            with open(self.config) as f:
+                return json.load(f)
+        except FileNotFoundError:
+            raise ReneusError(f'{self.path}: nothing to resume (no {self.CONFIG})') from None
+        except (OSError, ValueError) as e:
+            raise ReneusError(f'{self.config}: unreadable ({e})') from None
+
+    def write_config(self, values: dict) -> None:
+        atomic_write_text(self.config, json.dumps(values, indent=2))
+
+    def read_result(self) -> dict | None:
+        """The run's result, None while it has none (new, running, killed)."""
+        try:
+            with open(self.result) as f:
+                return json.load(f)
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as e:
+            raise ReneusError(f'{self.result}: unreadable ({e})') from None
+
+    def write_result(self, result: dict) -> None:
+        atomic_write_text(self.result, json.dumps(result, indent=2))
+
+    def clear_result(self) -> None:
+        """Forget an earlier result: a run that goes on is not finished until it ends again."""
+        if os.path.isfile(self.result):
+            os.unlink(self.result)
+
+    # ---------------------------------------------------------------- log
+    def read_log(self) -> list[dict]:
+        """The entries of ``log.jsonl``; a torn last line (a kill mid-write) is skipped."""
+        if not os.path.isfile(self.log):
+            return []
+        with open(self.log) as f:
+            lines = [line for line in f.read().split('\n') if line.strip()]
+        entries = []
+        for n, line in enumerate(lines):
+            try:
+                entry = json.loads(line)
+                int(entry['iteration'])
+            except (ValueError, KeyError, TypeError):
+                if n == len(lines) - 1:
+                    break
+                raise ReneusError(f'{self.log}: line {n + 1} is not a log entry ({line[:40]!r}); '
+                                  "expected JSON with an 'iteration'") from None
+            entries.append(entry)
+        return entries
+
+    def repair_log(self, iteration: int) -> list[dict]:
+        """Keep the log lines of steps up to ``iteration`` (a checkpoint's); return them.
+
+        Lines after the checkpoint (a resumed run redoes those steps) and a torn
+        last line are dropped. Missing steps before ``iteration`` are reported
+        with a warning: the run itself is whole, its record is not.
+        """
+        if not os.path.isfile(self.log):  # a trainer driven by hand keeps no log
+            return []
+        entries = [e for e in self.read_log() if int(e['iteration']) <= iteration]
+        missing = sorted(set(range(1, iteration + 1)) - {int(e['iteration']) for e in entries})
+        if missing:
+            warnings.warn(f'{self.log}: no log line for {len(missing)} of the {iteration} steps before '
+                          f'the checkpoint (first: {missing[:3]}); the run goes on, its log has gaps')
+        atomic_write_text(self.log, ''.join(json.dumps(e) + '\n' for e in entries))
+        return entries
+
+
+def recent_psnr(entries: list[dict], n: int = 100) -> float | None:
+    """Mean PSNR of the last ``n`` log entries, None when there are none."""
+    values = [e['psnr'] for e in entries[-n:] if isinstance(e.get('psnr'), (int, float))]
+    return sum(values) / len(values) if values else None
+
+
+class RunLock:
+    """An exclusive lock on a run folder, so that two processes never drive one run.
+
+    The lock file holds the owner's process id; a lock whose process is gone
+    (a kill) is taken over. Use as a context manager.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = os.fspath(path)
+        self.held = False
+
+    def acquire(self) -> None:
+        os.makedirs(os.path.dirname(self.path), exist_ok=True)
+        for _ in range(2):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            except FileExistsError:
+                owner = self.owner()
+                if owner is not None:
+                    raise ReneusError(f'{os.path.dirname(self.path)}: run is in use by process '
+                                      f'{owner}; expected one process per run folder') from None
+                # The owner is gone: the lock is stale.
+                try:
+                    os.unlink(self.path)
+                except FileNotFoundError:
+                    pass
+                continue
+            with os.fdopen(fd, 'w') as f:
+                f.write(str(os.getpid()))
+            self.held = True
+            return
+        raise ReneusError(f'{self.path}: cannot take the run lock')
+
+    def owner(self) -> int | None:
+        """The process id of a live holder of the lock, None when nobody holds it."""
+        try:
+            with open(self.path) as f:
+                pid = int(f.read().strip() or 0) or None
+        except (OSError, ValueError):
+            return None
+        return pid if pid is not None and _alive(pid) else None
+
+    def release(self) -> None:
+        if self.held:
+            self.held = False
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
+
+    def __enter__(self):
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
