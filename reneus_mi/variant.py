@@ -10,6 +10,8 @@ import os
 import drjit as dr
 import mitsuba as mi
 
+from reneus_mi.errors import ReneusError
+
 SUPPORTED = ('llvm_ad_rgb', 'cuda_ad_rgb')
 
 
@@ -17,7 +19,7 @@ def default_variant() -> str:
     requested = os.environ.get('RENEUS_VARIANT')
     if requested:
         if requested not in SUPPORTED:
-            raise ValueError(f"RENEUS_VARIANT={requested!r}: expected one of {', '.join(SUPPORTED)}")
+            raise ReneusError(f"RENEUS_VARIANT={requested!r}: expected one of {', '.join(SUPPORTED)}")
         return requested
     return 'cuda_ad_rgb' if dr.has_backend(dr.JitBackend.CUDA) else 'llvm_ad_rgb'
 
@@ -26,7 +28,7 @@ def set_variant(name: str | None = None) -> str:
     """Activate ``name`` (or the default) and register the plugins for it."""
     name = name or default_variant()
     if name not in SUPPORTED:
-        raise ValueError(f"variant {name!r}: expected one of {', '.join(SUPPORTED)}")
+        raise ReneusError(f"variant {name!r}: expected one of {', '.join(SUPPORTED)}")
     if mi.variant() != name:
         mi.set_variant(name)
     from reneus_mi.plugins import register

@@ -29,6 +29,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_savez
 
 # Vertices of a regular tetrahedron, |e_k|^2 = 3 and sum_k e_k e_k^T = 4 I.
@@ -105,7 +106,7 @@ class Field:
                 self._assign(key, values[key])
 
     def _assign(self, key: str, value) -> None:
-        raise KeyError(f'{type(self).__name__} has no parameter {key!r}')
+        raise ReneusError(f'{type(self).__name__} has no parameter {key!r}')
 
     def config(self) -> dict:
         """JSON-serialisable constructor arguments: with params() they rebuild the field."""
@@ -132,20 +133,20 @@ def load_field(path: str | os.PathLike) -> Field:
         data = np.load(path, allow_pickle=False)
         header = json.loads(str(data['header']))
     except (OSError, ValueError, KeyError) as e:
-        raise ValueError(f'{path}: not a reneus-mi field file ({e})') from None
+        raise ReneusError(f'{path}: not a reneus-mi field file ({e})') from None
     kind = header.get('kind')
     if kind not in FIELD_KINDS:
-        raise ValueError(f"{path}: unknown field kind {kind!r}; expected one of {sorted(FIELD_KINDS)}")
+        raise ReneusError(f"{path}: unknown field kind {kind!r}; expected one of {sorted(FIELD_KINDS)}")
     field = FIELD_KINDS[kind](**header['config'])
     expected = field.params()
     values = {}
     for key, cur in expected.items():
         name = f'param/{key}'
         if name not in data:
-            raise ValueError(f'{path}: parameter {key!r} missing')
+            raise ReneusError(f'{path}: parameter {key!r} missing')
         arr = data[name]
         if arr.size != dr.width(cur):
-            raise ValueError(f'{path}: parameter {key!r} has {arr.size} values, the field expects {dr.width(cur)}')
+            raise ReneusError(f'{path}: parameter {key!r} has {arr.size} values, the field expects {dr.width(cur)}')
         values[key] = type(cur)(arr)
     field.set_params(values)
     return field

@@ -117,7 +117,7 @@ def storage_types(dtype: str) -> tuple[type, type]:
         dtype = 'float16' if is_cuda() else 'float32'
     if dtype == 'float32':
         if is_cuda():
-            raise ValueError("NeuSField: dtype='float32' is not available on CUDA "
+            raise ReneusError("NeuSField: dtype='float32' is not available on CUDA "
                              "(cooperative vectors pack only half precision); use 'float16' or 'auto'")
         return mi.Float, mi.TensorXf
     half = dr.float16_array_t(mi.Float)

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from reneus_mi.errors import ReneusError
 from reneus_mi.render.ray_samplers import NeuSSampler, composite, neus_alpha, segment_layout
 
 
@@ -55,7 +56,7 @@ def _check_widths(**arrays) -> int:
     n_rays = widths['o']
     wrong = {name: w for name, w in widths.items() if w != n_rays}
     if wrong:
-        raise ValueError(f'volume_render: every input needs one entry per segment ({n_rays}, as o), '
+        raise ReneusError(f'volume_render: every input needs one entry per segment ({n_rays}, as o), '
                          f'got widths {wrong}')
     return n_rays
 
@@ -74,7 +75,7 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
     that the sampler's occupancy grid finds empty, at no field evaluation.
     """
     if isinstance(cos_anneal_ratio, (int, float)) and not 0.0 <= cos_anneal_ratio <= 1.0:
-        raise ValueError(f'volume_render: cos_anneal_ratio={cos_anneal_ratio!r}, expected a value in [0, 1]')
+        raise ReneusError(f'volume_render: cos_anneal_ratio={cos_anneal_ratio!r}, expected a value in [0, 1]')
     n_rays = _check_widths(o=o, d=d, t_near=t_near, t_far=t_far, jitter=jitter)
     if n_rays == 0:
         return _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio)

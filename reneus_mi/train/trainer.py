@@ -38,6 +38,7 @@ from reneus_mi.fields import load_field
 from reneus_mi.geometry.mesh import write_mesh
 from reneus_mi.geometry.surface import components, field_mesh
 from reneus_mi.render.frame import FieldFrame
+from reneus_mi.render.loading import reneus_integrator
 from reneus_mi.train.pixel_sampler import JITTER, PixelSampler, step_seed
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.data.images import write_image
@@ -144,10 +145,7 @@ class Trainer:
 
     def __init__(self, scene: mi.Scene, dataset: Dataset, cfg: TrainConfig, folder: RunFolder | str, *,
                  frame: FieldFrame | None = None):
-        integrator = scene.integrator()
-        if not hasattr(integrator, 'render_rays'):
-            raise ReneusError(f'the scene\'s integrator is {type(integrator).__name__}; expected '
-                              '<integrator type="reneus">')
+        integrator = reneus_integrator(scene, 'the scene to train')
         if not 0 <= cfg.validation_view < len(dataset):
             raise ReneusError(f'validation_view={cfg.validation_view}: the dataset has {len(dataset)} views')
         self.scene, self.integrator, self.ds, self.cfg = scene, integrator, dataset, cfg
