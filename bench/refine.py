@@ -29,9 +29,9 @@ import numpy as np
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..'))
 
 #: The wrong values a run starts from, and the switch that refines each.
-WRONG = {'ior': ({'ior': 1.40}, {'train.refine_ior': True}),
-         'pose': ({'offset': (0.02, -0.01, 0.005), 'scale': 1.02}, {'train.refine_pose': True}),
-         'ambient': ({'ambient': 0.7}, {'train.refine_light': 'ambient'})}
+WRONG = {'ior': ({'ior': 1.40}, {'train.refine.ior': True}),
+         'pose': ({'offset': (0.02, -0.01, 0.005), 'scale': 1.02}, {'train.refine.pose': True}),
+         'ambient': ({'ambient': 0.7}, {'train.refine.light': 'ambient'})}
 
 
 def specs(obj: str, data: str, out: str, quantities, iterations: int) -> dict:
@@ -132,7 +132,7 @@ def main(argv=None) -> int:
         '- Wrong values: IOR 1.40; the box shifted by (2, -1, 0.5) % of its size and scaled by 1.02; '
         'ambient 0.7.',
         f'- Each run: the `fast` preset, {args.iterations} steps of 512 rays; the refined quantities '
-        'move after step 100 (`refine_after`).', '',
+        'move after step 100 (`train.refine.after`).', '',
         'Chamfer-L1 x100 of the mesh (largest component) with the true values, with the wrong value '
         'held fixed (the paper: container and light known) and with it refined.', '',
         '| object | wrong | CD true values | CD wrong, fixed | CD wrong, refined | refined value |',

@@ -190,6 +190,17 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             out.update(self._bound[1].params())
         return out
 
+    def traverse_keys(self, params: mi.SceneParameters) -> dict[str, str]:
+        """The keys of the integrator's arrays in ``params`` (``mi.traverse`` of its scene), by
+        their names here: ``sdf.weights`` -> ``field.sdf.weights`` under the integrator's id."""
+        mine = [key for key, (_, _, node, _) in params.properties.items() if node is self]
+        names = list(self.params())
+        if len(mine) != len(names):
+            raise ReneusError(f'mi.traverse shows {len(mine)} arrays of the integrator, it has '
+                              f'{len(names)}; expected the traversal of its scene, after bind()')
+        # traverse() puts them in this order.
+        return dict(zip(names, mine))
+
     def parameters_changed(self, keys):
         # SceneParameters wrote the new values into the field's own arrays.
         pass

@@ -27,30 +27,46 @@ def field_docs(cls) -> dict[str, str]:
     return docs
 
 
-def add_arguments(parser: argparse.ArgumentParser, cls, *, default_note: str | None = None) -> None:
+def add_arguments(parser: argparse.ArgumentParser, cls, *, default_note: str | None = None,
+                  prefix: str = '') -> None:
     """Add one option per field of ``cls``, its docstring as help, the default said once.
 
-    ``default_note`` replaces the default in the help where another source
-    (e.g. a preset) provides it.
+    A nested configuration adds its fields under its name: ``TrainConfig.refine.ior``
+    is ``--refine-ior``. ``default_note`` replaces the default in the help where
+    another source (e.g. a preset) provides it.
     """
     docs = field_docs(cls)
     hints = typing.get_type_hints(cls)
     group = parser.add_argument_group(f'{cls.__name__} options')
     for f in dataclasses.fields(cls):
         kind = hints[f.name]
-        option = '--' + f.name.replace('_', '-')
+        path = prefix + f.name
+        if dataclasses.is_dataclass(kind):
+            add_arguments(parser, kind, default_note=default_note, prefix=path + '.')
+            continue
+        option = '--' + path.replace('.', '-').replace('_', '-')
         help_text = f'{docs.get(f.name, "")} (default: {default_note or f.default})'
         if kind is bool:
-            group.add_argument(option, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+            group.add_argument(option, dest=path, action=argparse.BooleanOptionalAction, default=None,
+                               help=help_text)
         elif typing.get_origin(kind) is tuple:
             items = typing.get_args(kind)
-            group.add_argument(option, type=items[0], nargs=len(items), default=None,
+            group.add_argument(option, dest=path, type=items[0], nargs=len(items), default=None,
                                metavar=items[0].__name__.upper(), help=help_text)
         else:
-            group.add_argument(option, type=kind, default=None, metavar=kind.__name__.upper(), help=help_text)
+            group.add_argument(option, dest=path, type=kind, default=None, metavar=kind.__name__.upper(),
+                               help=help_text)
 
 
-def given_arguments(cls, args: argparse.Namespace) -> dict:
-    """The fields of ``cls`` that the user gave on the command line."""
-    return {f.name: tuple(v) if isinstance(v := getattr(args, f.name), list) else v
-            for f in dataclasses.fields(cls) if getattr(args, f.name, None) is not None}
+def given_arguments(cls, args: argparse.Namespace, prefix: str = '') -> dict:
+    """The settings of ``cls`` that the user gave on the command line, by dotted path
+    (``{'iterations': 10, 'refine.ior': True}``)."""
+    hints = typing.get_type_hints(cls)
+    given = {}
+    for f in dataclasses.fields(cls):
+        path = prefix + f.name
+        if dataclasses.is_dataclass(hints[f.name]):
+            given.update(given_arguments(hints[f.name], args, path + '.'))
+        elif (value := getattr(args, path, None)) is not None:
+            given[path] = tuple(value) if isinstance(value, list) else value
+    return given

@@ -8,6 +8,7 @@ A :class:`ReconstructionConfig` is what a run is made of::
     │   ├── sampler: SamplerConfig  samples per inside segment (reneus_mi.render.ray_samplers)
     │   └── render: RenderConfig    mode, D_re, terminal, gamma
     └── train: TrainConfig          how it is fitted (reneus_mi.optimize)
+        └── refine: RefineConfig    beyond the paper: the container's IOR and pose, the light
 
 Every field has its default written once, here or beside the component it
 configures, and a docstring (the string literal under it) that is its
@@ -88,6 +89,48 @@ class ModelConfig:
 
 
 @dataclass
+class RefineConfig:
+    """Beyond the paper, which takes the container and the light as known: what is refined with
+    the field. Each quantity is a parameter group of its own (its learning rate follows the
+    field's schedule) that starts moving after ``after`` steps."""
+
+    ior: bool = False
+    """Refine the container's IOR with the field."""
+    ior_learning_rate: float = 2e-3
+    """Peak learning rate of the IOR."""
+    ior_range: tuple[float, float] = (1.05, 2.5)
+    """Bounds of the refined IOR."""
+    pose: bool = False
+    """Refine the container's position, rotation and per-axis scale with the field; the refined
+    container is written as container_refined.ply."""
+    pose_learning_rate: float = 1e-3
+    """Peak learning rate of the pose (world units, radians, log-scale)."""
+    silhouette_weight: float = 0.01
+    """Weight of the container's silhouette against masks segmented from the photographs, per
+    pixel of distance, while the pose is refined (0: refraction alone moves it)."""
+    light: str = 'none'
+    """Refine the light outside the container: 'none', 'ambient' (one RGB radiance) or 'sh'
+    (spherical harmonics up to order 2, for rooms that are not uniform)."""
+    light_learning_rate: float = 5e-3
+    """Peak learning rate of the light."""
+    after: int = 100
+    """Steps of field-only training before the IOR, pose and light start to move (a formless
+    field gives them no signal to follow)."""
+
+    def __post_init__(self):
+        check_numbers(self, positive=('ior_learning_rate', 'pose_learning_rate', 'light_learning_rate'),
+                      at_least_zero=('after', 'silhouette_weight'))
+        check_choice(self, 'light', ('none',) + LIGHTS[1:])
+        lo, hi = self.ior_range
+        if not 1.0 < lo < hi:
+            raise ReneusError(f'ior_range={list(self.ior_range)}: expected 1 < low < high')
+
+    def any(self) -> bool:
+        """Whether anything besides the field is refined."""
+        return self.ior or self.pose or self.light != 'none'
+
+
+@dataclass
 class TrainConfig:
     """How the field is fitted to the photographs (Sec. 3.4)."""
 
@@ -133,46 +176,16 @@ class TrainConfig:
     (drop what lies outside the container) or 'none'."""
     divergence_factor: float = 50.0
     """Stop when the loss exceeds this multiple of its lowest value so far (after warm-up)."""
-    refine_ior: bool = False
-    """Refine the container's IOR with the field (beyond the paper: it takes the IOR as known)."""
-    ior_learning_rate: float = 2e-3
-    """Peak learning rate of the IOR (it follows the field's schedule)."""
-    ior_range: tuple[float, float] = (1.05, 2.5)
-    """Bounds of the refined IOR."""
-    refine_pose: bool = False
-    """Refine the container's position, rotation and per-axis scale with the field; the refined
-    container is written as container_refined.ply."""
-    pose_learning_rate: float = 1e-3
-    """Peak learning rate of the pose (world units, radians, log-scale)."""
-    silhouette_weight: float = 0.01
-    """Weight of the container's silhouette against masks segmented from the photographs, per
-    pixel of distance, while the pose is refined (0: refraction alone moves it)."""
-    refine_light: str = 'none'
-    """Refine the light outside the container: 'none', 'ambient' (one RGB radiance) or 'sh'
-    (spherical harmonics up to order 2, for rooms that are not uniform)."""
-    light_learning_rate: float = 5e-3
-    """Peak learning rate of the light."""
-    refine_after: int = 100
-    """Steps of field-only training before the IOR, pose and light start to move (a formless
-    field gives them no signal to follow)."""
+    refine: RefineConfig = dataclasses.field(default_factory=RefineConfig)
+    """What is refined with the field beyond the paper: the container's IOR and pose, the light."""
 
     def __post_init__(self):
         check_numbers(self, positive=('iterations', 'batch_rays', 'mesh_resolution', 'log_every',
-                                      'learning_rate', 'divergence_factor', 'ior_learning_rate',
-                                      'pose_learning_rate', 'light_learning_rate'),
+                                      'learning_rate', 'divergence_factor'),
                       at_least_zero=('sample_budget', 'warm_up', 'anneal_end', 'validate_every', 'checkpoint_every',
                                      'validation_view', 'trans_weight', 'eikonal_weight',
-                                     'learning_rate_alpha', 'max_minutes', 'seed', 'refine_after',
-                                     'silhouette_weight'))
+                                     'learning_rate_alpha', 'max_minutes', 'seed'))
         check_choice(self, 'postprocess', POSTPROCESS_MODES)
-        check_choice(self, 'refine_light', ('none',) + LIGHTS[1:])
-        lo, hi = self.ior_range
-        if not 1.0 < lo < hi:
-            raise ReneusError(f'ior_range={list(self.ior_range)}: expected 1 < low < high')
-
-    def refined(self) -> bool:
-        """Whether the run refines anything besides the field."""
-        return self.refine_ior or self.refine_pose or self.refine_light != 'none'
 
     def learning_rate_at(self, it: int) -> float:
         """NeuS's schedule: linear warm-up, then cosine decay to ``learning_rate_alpha``."""
@@ -197,6 +210,14 @@ class ReconstructionConfig:
 
 
 # --------------------------------------------------------- dicts and JSON
+#: Settings that moved, by their old path: a config.json of an older run names them.
+MOVED = {f'train.{old}': f'train.refine.{new}' for old, new in (
+    ('refine_ior', 'ior'), ('ior_learning_rate', 'ior_learning_rate'), ('ior_range', 'ior_range'),
+    ('refine_pose', 'pose'), ('pose_learning_rate', 'pose_learning_rate'),
+    ('silhouette_weight', 'silhouette_weight'), ('refine_light', 'light'),
+    ('light_learning_rate', 'light_learning_rate'), ('refine_after', 'after'))}
+
+
 def to_dict(cfg) -> dict:
     """Nested plain dict of a config (a field config records its ``kind``)."""
     out = {}
@@ -224,6 +245,9 @@ def from_dict(cls, values: dict, where: str = ''):
         if key == 'kind' and getattr(cls, 'kind', None):
             continue
         if key not in known:
+            if path in MOVED:
+                raise ReneusError(f'{path}: now {MOVED[path]}; the file was written by an older '
+                                  'reneus-mi: start the run anew (or rename the key)')
             raise ReneusError(f"{path}: unknown setting; expected one of {', '.join(known)}")
         kind = hints[key]
         if kind is FieldConfig or (isinstance(kind, type) and dataclasses.is_dataclass(kind)):

@@ -82,7 +82,7 @@ def train_state(trainer: Trainer) -> dict:
     """Parameters, Adam moments and step counts of the optimiser, by the field's names."""
     state = {}
     for key in trainer.opt.keys():
-        name = trainer._name(key)
+        name = trainer.names[key]
         _, _, _, (t, m, v, _) = trainer.opt.state[key]
         state[f'param/{name}'] = np.array(trainer.opt[key]).ravel()
         state[f'adam/{name}/m'] = np.array(m).ravel()
@@ -165,14 +165,14 @@ def test_resume_matches_unbroken_run(scene_xml, tmp_path):
     # The steps moved the weights by far more than the tolerance.
     init = new_trainer(scene_xml, tmp_path / 'init')
     moved = differences(a, train_state(init))
-    assert min(moved[f'param/{init._name(k)}'] for k in init.opt.keys()) > 30 * PARAM_ATOL
+    assert min(moved[f'param/{name}'] for name in init.names.values()) > 30 * PARAM_ATOL
 
 
 def test_resume_of_a_refining_run_matches_unbroken_run(scene_xml, tmp_path):
     # IOR, pose (with the silhouette term), SH light and a sample budget: their values, Adam
     # states and the batch size come back from the checkpoint.
-    refine = dict(refine_ior=True, refine_pose=True, refine_light='sh', refine_after=0,
-                  sample_budget=2000, batch_rays=64)
+    refine = {'refine.ior': True, 'refine.pose': True, 'refine.light': 'sh', 'refine.after': 0,
+              'sample_budget': 2000, 'batch_rays': 64}
     a, b = _resume_vs_unbroken(scene_xml, tmp_path, **refine)
     assert {'param/container.eta', 'param/container.translation', 'param/light.sh'} <= set(a)
     assert_same_state(a, b, exact=False)
@@ -327,6 +327,5 @@ def test_loss_scaler_state_survives_a_checkpoint(scene_xml, tmp_path):
     trainer.save_checkpoint()
     resumed = new_trainer(scene_xml, tmp_path)
     resumed.scaler = GradScaler(init_scale=mi.Float(2.0 ** 16))
-    names = {key: resumed._name(key) for key in resumed.opt.keys()}
-    checkpoint.restore(resumed.checkpoint_path, resumed.opt, names, resumed.scaler)
+    checkpoint.restore(resumed.checkpoint_path, resumed.opt, resumed.names, resumed.scaler)
     assert float(resumed.scaler.scale_factor[0]) == 1024.0 and resumed.scaler.it == 7

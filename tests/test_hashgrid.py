@@ -206,11 +206,14 @@ def test_save_load_round_trip(tmp_path):
     assert np.array_equal(np.asarray(loaded.inv_s()), np.asarray(field.inv_s()))
 
 
-def test_registration_and_lr_scale():
+def test_registration_and_param_groups():
     assert FIELD_KINDS['HashGridField'] is HashGridField
     field = HashGridField(grid_lr_scale=10.0, **TINY)
-    assert field.lr_scale() == {'sdf.grid': 10.0}
     assert set(field.params()) == {'sdf.grid', 'sdf.weights', 'color.weights', 'variance'}
+    groups = {g.name: g for g in field.param_groups(1e-3)}
+    assert groups['field.grid'].keys == ('sdf.grid',) and groups['field.grid'].learning_rate == 1e-2
+    assert set(groups['field'].keys) == {'sdf.weights', 'color.weights', 'variance'}
+    assert groups['field'].learning_rate == 1e-3 and all(g.start == 0 for g in groups.values())
     assert dr.width(field.params()['sdf.grid']) == field.encoding.n_params
 
 

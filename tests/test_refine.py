@@ -209,8 +209,8 @@ def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]
     changes = {'train.iterations': ITERATIONS[quantity], 'train.batch_rays': 512, 'train.validate_every': 0,
                'train.checkpoint_every': 0, 'train.mesh_resolution': 128, 'train.log_every': 50}
     if refine:
-        changes.update({'ior': {'train.refine_ior': True}, 'ambient': {'train.refine_light': 'ambient'},
-                        'pose': {'train.refine_pose': True}}[quantity])
+        changes.update({'ior': {'train.refine.ior': True}, 'ambient': {'train.refine.light': 'ambient'},
+                        'pose': {'train.refine.pose': True}}[quantity])
     spec.config = replace(spec.config, **changes)
     out = str(folder / f'run_{quantity}_{"refined" if refine else "fixed"}')
     result = runs.run(spec, out, progress=False)

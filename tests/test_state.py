@@ -197,3 +197,22 @@ def test_sample_budget_sets_the_next_batch():
     assert next_batch(cfg, 1.0) == 8192             # at most 8x
     assert next_batch(cfg, 1000.0) == 256           # at least 1/8 (and one quantum)
     assert next_batch(cfg, 33.0) % 256 == 0
+
+
+def test_groups_start_at_their_step_and_keep_their_bounds(scene_xml, tmp_path):
+    """The field moves from step 0; the refined IOR is held until refine.after, then moves at
+    its own rate within refine.ior_range."""
+    trainer = new_trainer(scene_xml, tmp_path, **{'refine.ior': True, 'refine.after': 2,
+                                                  'refine.ior_learning_rate': 0.5,
+                                                  'refine.ior_range': (1.40, 1.46)})
+    assert [g.name for g in trainer.groups] == ['field', 'ior']
+    assert trainer.groups[1].start == 2 and trainer.groups[1].bounds == (1.40, 1.46)
+    eta = lambda: float(np.array(trainer.opt[trainer.keys['container.eta']])[0])  # noqa: E731
+    sdf = lambda: np.array(trainer.opt[trainer.keys['sdf.weights']])  # noqa: E731
+    start, weights = eta(), sdf()
+    trainer.step()
+    trainer.step()
+    assert eta() == start and np.abs(sdf() - weights).max() > 0
+    trainer.step()
+    # A step of 0.5 leaves the range: the IOR stops at its bound.
+    assert min(abs(eta() - 1.40), abs(eta() - 1.46)) < 1e-6

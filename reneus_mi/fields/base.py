@@ -31,6 +31,7 @@ import numpy as np
 
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_savez
+from reneus_mi.param_groups import ParamGroup
 
 # Vertices of a regular tetrahedron, |e_k|^2 = 3 and sum_k e_k e_k^T = 4 I.
 _TETRA = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1.0, 1.0))
@@ -69,9 +70,11 @@ class Field:
     def inv_s(self) -> mi.Float:
         raise NotImplementedError
 
-    def lr_scale(self) -> dict[str, float]:
-        """Learning-rate factor of each parameter group (keys of :meth:`params`; 1 if absent)."""
-        return {}
+    def param_groups(self, learning_rate: float) -> list[ParamGroup]:
+        """The keys of :meth:`params` in named groups at their peak learning rates, from
+        ``learning_rate`` (the run's): one group ``field`` by default, none without parameters."""
+        keys = tuple(self.params())
+        return [ParamGroup('field', keys, learning_rate)] if keys else []
 
     def set_step(self, step: int) -> None:
         """Follow the training schedule (e.g. open hash-grid levels); nothing by default."""

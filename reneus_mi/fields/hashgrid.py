@@ -39,6 +39,7 @@ import numpy as np
 from reneus_mi.fields.activations import Softplus
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
 from reneus_mi.fields.neus import NeuralField, NeuralFieldConfig, build_mlp, fan_in_uniform_init
+from reneus_mi.param_groups import ParamGroup
 
 # Scale of the SDF head relative to its fan-in initialisation: the residual on
 # the sphere starts at ~1e-3 while every weight still gets a gradient.
@@ -129,8 +130,8 @@ class HashGridField(NeuralField):
 
     Parameters (:meth:`params`): ``'sdf.grid'`` (the hash table, also the
     coarse levels' dense grids), ``'sdf.weights'`` and ``'color.weights'``
-    (packed MLPs, written in place), ``'variance'``. :meth:`lr_scale` scales
-    the table's learning rate by ``grid_lr_scale``.
+    (packed MLPs, written in place), ``'variance'``. :meth:`param_groups` gives
+    the table its own group at ``grid_lr_scale`` times the learning rate.
 
     Precision as :class:`~reneus_mi.fields.neus.NeuSField`: float16 table and
     weights on CUDA (with a ``GradScaler`` and Adam's float32 master copy),
@@ -170,8 +171,11 @@ class HashGridField(NeuralField):
         scale = self.encoding._level_scale(n_open - 1)
         self.fd_step = dr.opaque(mi.Float, cfg.fd_cells * 2.0 / scale)
 
-    def lr_scale(self) -> dict[str, float]:
-        return {'sdf.grid': float(self.cfg.grid_lr_scale)}
+    def param_groups(self, learning_rate: float) -> list[ParamGroup]:
+        """The table (``field.grid``, at ``grid_lr_scale`` times the rate) and the networks."""
+        rest = tuple(k for k in self.params() if k != 'sdf.grid')
+        return [ParamGroup('field.grid', ('sdf.grid',), learning_rate * self.cfg.grid_lr_scale),
+                ParamGroup('field', rest, learning_rate)]
 
     # ------------------------------------------------------------ networks
     def _encode(self, u: mi.Point3f, jacobian: bool) -> tuple[list, list]:

@@ -29,8 +29,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.geometry.container import CREASE_ANGLE, shading_normals
 from reneus_mi.errors import ReneusError
+from reneus_mi.geometry.container import CREASE_ANGLE, shading_normals
+from reneus_mi.param_groups import ParamGroup
 
 #: Light models: the scene's emitter as given, one refinable RGB radiance, order-2 SH.
 LIGHTS = ('emitter', 'ambient', 'sh')
@@ -208,13 +209,37 @@ class Surroundings:
         """Radiance arriving from direction ``d`` outside the container (C_out)."""
         return emitter_radiance(self.emitter, d) if self.light is None else self.light.eval(d)
 
-    def values(self) -> dict:
-        """The current values, as plain numbers: for logs and a run's result file."""
-        out = {name: np.array(value, np.float64).round(6).tolist() for name, value in self.params().items()}
-        out['container.eta'] = out['container.eta'][0]
-        if self.pose is not None:
+    def param_groups(self, refine) -> list[ParamGroup]:
+        """The groups that ``refine`` (a :class:`~reneus_mi.config.RefineConfig`) asks for: the
+        IOR (within its range), the pose, the light; each at its own rate from ``refine.after``."""
+        groups = []
+        if refine.ior:
+            groups.append(ParamGroup('ior', ('container.eta',), refine.ior_learning_rate, refine.after,
+                                     tuple(refine.ior_range)))
+        if refine.pose:
+            if self.pose is None:
+                raise ReneusError('refine.pose: the integrator has no container pose; expected '
+                                  'render.container_pose = true')
+            groups.append(ParamGroup('pose', tuple(self.pose.params()), refine.pose_learning_rate, refine.after))
+        if refine.light != 'none':
+            if self.light is None or self.light.kind != refine.light:
+                raise ReneusError(f'refine.light={refine.light!r}: the integrator\'s light is '
+                                  f"{self.light.kind if self.light else 'emitter'!r}; expected render.light "
+                                  f'= {refine.light!r}')
+            groups.append(ParamGroup('light', (self.light.name,), refine.light_learning_rate, refine.after))
+        return groups
+
+    def values(self, names) -> dict:
+        """The current values of the arrays ``names`` as plain numbers, with what reads better
+        beside them (the scale of a log-scale, an SH light's mean): for logs and a run's result."""
+        params = self.params()
+        out = {}
+        for name in names:
+            value = np.array(params[name], np.float64).round(6).tolist()
+            out[name] = value[0] if name == 'container.eta' else value
+        if 'container.log_scale' in out:
             out['container.scale'] = np.exp(out['container.log_scale']).round(6).tolist()
-        if self.light is not None:
+        if 'light.sh' in out:
             out['light.mean'] = self.light.mean().round(6).tolist()
         return out
 

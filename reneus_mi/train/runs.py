@@ -120,16 +120,16 @@ def make_trainer(spec: RunSpec, out: str):
 
 def with_refinement(config: ReconstructionConfig) -> ReconstructionConfig:
     """The configuration whose model has the parameters that its training refines: the
-    container's pose, and the light model that ``refine_light`` names."""
+    container's pose, and the light model that ``train.refine.light`` names."""
     from reneus_mi.config import replace
-    train, render = config.train, config.model.render
+    refine, render = config.train.refine, config.model.render
     changes = {}
-    if train.refine_pose:
+    if refine.pose:
         changes['model.render.container_pose'] = True
-    if train.refine_light != 'none':
-        changes['model.render.light'] = train.refine_light
-    if train.refined() and render.mode == 'neus':
-        raise ReneusError('refine_ior, refine_pose and refine_light need a container: mode is neus')
+    if refine.light != 'none':
+        changes['model.render.light'] = refine.light
+    if refine.any() and render.mode == 'neus':
+        raise ReneusError('train.refine (ior, pose, light) needs a container: mode is neus')
     return replace(config, **changes)
 
 

@@ -114,32 +114,6 @@ class StepStats:
     seconds: float
 
 
-def refined_rates(cfg: TrainConfig) -> dict[str, float]:
-    """The integrator's parameters (besides the field's) that a run refines, with their peak
-    learning rates."""
-    rates = {'container.eta': cfg.ior_learning_rate} if cfg.refine_ior else {}
-    if cfg.refine_pose:
-        rates.update(dict.fromkeys(('container.translation', 'container.rotation', 'container.log_scale'),
-                                   cfg.pose_learning_rate))
-    if cfg.refine_light != 'none':
-        rates['light.radiance' if cfg.refine_light == 'ambient' else 'light.sh'] = cfg.light_learning_rate
-    return rates
-
-
-def trainable_parameters(scene: mi.Scene, cfg: TrainConfig | None = None) -> mi.SceneParameters:
-    """``mi.traverse(scene)`` kept to what is fitted: the field's own arrays and the
-    surroundings that ``cfg`` refines."""
-    integrator = scene.integrator()
-    integrator.bind(scene)
-    params = mi.traverse(scene)
-    named = integrator.params()
-    own = [id(v) for v in integrator.field.params().values()]
-    own += [id(named[n]) for n in (refined_rates(cfg) if cfg else {})]
-    # The raw entries: reading through params[k] would mark every key for update.
-    params.keep([k for k, (value, *_) in params.properties.items() if id(value) in own])
-    return params
-
-
 class Trainer:
     """One reconstruction: a scene, its dataset, the field and its optimiser."""
 
@@ -154,9 +128,9 @@ class Trainer:
         self.frame = frame or integrator.frame_of(scene)
         # A refined container may move out of the masks it was drawn with: a margin of
         # pixels around them (outside the glass the photographs show the ambient, as renders do).
-        self.pixels = PixelSampler(dataset, cfg.seed, margin=POSE_MARGIN if cfg.refine_pose else 0.0)
+        self.pixels = PixelSampler(dataset, cfg.seed, margin=POSE_MARGIN if cfg.refine.pose else 0.0)
         self.silhouette = None
-        if cfg.refine_pose and cfg.silhouette_weight > 0:
+        if cfg.refine.pose and cfg.refine.silhouette_weight > 0:
             if not dataset.masks_measured:
                 warnings.warn(f'{dataset.root}: the masks are projected from the container mesh, not '
                               'segmented from the photographs: they cannot correct its pose, which '
@@ -171,17 +145,20 @@ class Trainer:
 
     def _setup_optimizer(self) -> None:
         cfg = self.cfg
-        self.params = trainable_parameters(self.scene, cfg)
-        self.opt = mi.ad.Adam(lr=cfg.learning_rate, params=self.params)
+        # What is fitted, in the groups its owners declare: the field's, and the surroundings'
+        # that the run refines (held until refine.after).
+        refined = self.surroundings.param_groups(cfg.refine)
+        self.groups = self.field.param_groups(cfg.learning_rate) + refined
+        self.refined = tuple(name for group in refined for name in group.keys)
+        params = mi.traverse(self.scene)
+        keys = self.integrator.traverse_keys(params)
+        #: The ``mi.traverse`` key of each array fitted, by the integrator's name.
+        self.keys = {name: keys[name] for group in self.groups for name in group.keys}
+        params.keep(list(self.keys.values()))
+        self.params = params
+        self.opt = mi.ad.Adam(lr=cfg.learning_rate, params=params)
         # From here on the field computes with the optimiser's variables.
         self.params.update(self.opt)
-        # Learning rates relative to the field's peak: the field's groups scale it, the
-        # surroundings have their own (they follow the same schedule).
-        own = refined_rates(cfg)
-        self._lr_scale = {key: own[name] / cfg.learning_rate if name in own
-                          else self.field.lr_scale().get(name, 1.0)
-                          for key, name in ((k, self._name(k)) for k in self.opt.keys())}
-        self._refined = {self._name(k): k for k in self.opt.keys() if self._name(k) in own}
         # Half-precision networks (CUDA) need loss scaling; an array scale
         # keeps the scaler's first back-off from recompiling the kernels.
         self.scaler = GradScaler(init_scale=mi.Float(2.0 ** 16)) if is_cuda() else None
@@ -194,19 +171,14 @@ class Trainer:
     def surroundings(self):
         return self.integrator.bind(self.scene)
 
-    def _name(self, key: str) -> str:
-        """The integrator's name of a ``mi.traverse`` key (``field.sdf.weights`` -> ``sdf.weights``)."""
-        names = {id(v): k for k, v in self.integrator.params().items()}
-        return names[id(self.params.properties[key][0])]
+    @property
+    def names(self) -> dict[str, str]:
+        """The integrator's name of each optimiser key (``field.sdf.weights`` -> ``sdf.weights``)."""
+        return {key: name for name, key in self.keys.items()}
 
     def refined_values(self) -> dict:
         """The refined IOR, pose and light as they stand (a host read: for logs and results)."""
-        if not self._refined:
-            return {}
-        values = self.surroundings.values()
-        derived = {'container.log_scale': 'container.scale', 'light.sh': 'light.mean'}
-        keep = set(self._refined) | {derived[k] for k in self._refined if k in derived}
-        return {k: v for k, v in values.items() if k in keep}
+        return self.surroundings.values(self.refined) if self.refined else {}
 
     # ------------------------------------------------------------ checkpoints
     @property
@@ -214,8 +186,7 @@ class Trainer:
         return self.folder.checkpoint
 
     def save_checkpoint(self) -> None:
-        names = {key: self._name(key) for key in self.opt.keys()}
-        checkpoint.save(self.checkpoint_path, self.field, self.opt, names, iteration=self.iteration,
+        checkpoint.save(self.checkpoint_path, self.field, self.opt, self.names, iteration=self.iteration,
                         best_loss=self.best_loss, frame=self.frame, container=self.container,
                         scaler=self.scaler, surroundings=self.surroundings.params(), batch=self.batch)
 
@@ -227,8 +198,7 @@ class Trainer:
         self.integrator.configure(field=load_field(path))
         self.surroundings.load(checkpoint.load_surroundings(path), path)
         self._setup_optimizer()
-        names = {key: self._name(key) for key in self.opt.keys()}
-        meta = checkpoint.restore(path, self.opt, names, self.scaler)
+        meta = checkpoint.restore(path, self.opt, self.names, self.scaler)
         self.iteration = meta['iteration']
         self.best_loss = meta['best_loss']
         self.batch = meta.get('batch', self.cfg.batch_rays)
@@ -250,7 +220,7 @@ class Trainer:
         l_eik = losses.eikonal(result.eikonal, result.n_samples)
         loss = l_color + cfg.trans_weight * l_trans + cfg.eikonal_weight * l_eik
         if self.silhouette is not None:
-            loss += cfg.silhouette_weight * self.silhouette(it, self.surroundings.pose)
+            loss += cfg.refine.silhouette_weight * self.silhouette(it, self.surroundings.pose)
         mse = losses.mean(dr.square(dr.detach(result.color) - target))
         samples = dr.sum(result.n_samples)
         # Scheduled, the loss terms are computed in the launch that evaluates
@@ -269,15 +239,19 @@ class Trainer:
                 raise TrainingError(f'step {it}: the gradient of {key!r} is not finite; stopped '
                                     f'before updating, the last checkpoint ({self.checkpoint_path}) is intact')
         lr = cfg.learning_rate_at(it)
-        held = set(self._refined.values()) if it < cfg.refine_after else set()
-        self.opt.set_learning_rate({key: 0.0 if key in held else lr * s for key, s in self._lr_scale.items()})
+        # Every group follows the run's schedule at its own peak rate, from its start step.
+        self.opt.set_learning_rate({self.keys[name]: 0.0 if it < group.start else
+                                    lr * (group.learning_rate / cfg.learning_rate)
+                                    for group in self.groups for name in group.keys})
         if self.scaler:
             self.scaler.step(self.opt)
         else:
             self.opt.step()
-        if 'container.eta' in self._refined:
-            key = self._refined['container.eta']
-            self.opt[key] = dr.clip(self.opt[key], *cfg.ior_range)
+        for group in self.groups:
+            if group.bounds is not None:
+                for name in group.keys:
+                    key = self.keys[name]
+                    self.opt[key] = dr.clip(self.opt[key], *group.bounds)
         self.params.update(self.opt)
         self.iteration += 1
         self.best_loss = min(self.best_loss, value)
@@ -380,9 +354,9 @@ class Trainer:
         result = {'iterations': self.iteration, 'seconds': time.perf_counter() - start,
                   'psnr': float(np.mean(psnrs)) if psnrs else float('nan'), 'mesh': mesh_path,
                   'stopped_by_budget': self.iteration < cfg.iterations}
-        if self._refined:
+        if self.refined:
             result['refined'] = self.refined_values()
-        if cfg.refine_pose:
+        if cfg.refine.pose:
             result['container'] = self.write_container(self.folder.container)
         try:
             result['components'] = components(self.write_mesh(mesh_path))
