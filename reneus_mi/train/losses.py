@@ -1,12 +1,52 @@
-"""The loss of Eq. 13: L = L_color + λ1 L_trans + λ2 L_reg, over a batch of rays.
+"""The loss of Eq. 13 by term: L = L_color + λ1 L_trans + λ2 L_reg, over a batch of rays.
+
+:func:`loss_dict` returns the paper's terms (and the container's silhouette
+term while its pose is refined) by name with their weights, as nerfstudio's
+``get_loss_dict``; :func:`total` is their weighted sum. The trainer's step and
+a hand-written loop (``notebooks/02_reconstruction.ipynb``) use both, and the
+log records each term by its name.
 
 The batch holds only rays inside the container mask M_in (the trainer draws
 them there), so the masked means of Eqs. 14-15 are plain means here.
 """
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import drjit as dr
 import mitsuba as mi
+
+
+class Term(NamedTuple):
+    """One term of the loss: its value (a Dr.Jit scalar) and its weight."""
+    value: mi.Float
+    weight: float
+
+
+def loss_dict(result, target: mi.Color3f, cfg, silhouette: mi.Float | None = None) -> dict[str, Term]:
+    """The terms of a batch by name: ``color`` (Eq. 14, weight 1), ``trans`` (Eq. 15, λ1 =
+    ``cfg.trans_weight``), ``eikonal`` (Eq. 16, λ2 = ``cfg.eikonal_weight``) and, given its
+    value, ``silhouette`` (``cfg.refine.silhouette_weight``).
+
+    ``result`` is :meth:`ReNeuSIntegrator.render_rays`'s, ``target`` the photographs'
+    colours, ``cfg`` a :class:`~reneus_mi.config.TrainConfig`.
+    """
+    terms = {'color': Term(color_l1(result.color, target), 1.0),
+             'trans': Term(transmittance_sparsity(result.sparsity), cfg.trans_weight),
+             'eikonal': Term(eikonal(result.eikonal, result.n_samples), cfg.eikonal_weight)}
+    if silhouette is not None:
+        terms['silhouette'] = Term(silhouette, cfg.refine.silhouette_weight)
+    return terms
+
+
+def total(terms: dict[str, Term]) -> mi.Float:
+    """The weighted sum of the terms, in their order."""
+    loss = None
+    for value, weight in terms.values():
+        weighted = value if weight == 1.0 else weight * value
+        loss = weighted if loss is None else loss + weighted
+    return loss
 
 
 def mean(x) -> mi.Float:
@@ -31,6 +71,11 @@ def eikonal(eikonal_sum: mi.Float, n_samples: mi.Float) -> mi.Float:
     return dr.sum(eikonal_sum) / dr.maximum(dr.sum(n_samples), 1.0)
 
 
-def psnr(pred: mi.Color3f, target: mi.Color3f) -> float:
-    mse = float(mean(dr.square(dr.detach(pred) - target))[0])
-    return float('inf') if mse == 0 else -10.0 * dr.log(mse) / dr.log(10.0)
+def mse(pred: mi.Color3f, target: mi.Color3f) -> mi.Float:
+    """Mean squared error of the pixel values (no gradient): what PSNR measures."""
+    return mean(dr.square(dr.detach(pred) - target))
+
+
+def psnr(mse_value: float) -> float:
+    """Peak signal-to-noise ratio (dB) of values in [0, 1] from their mean squared error."""
+    return float('inf') if mse_value == 0 else -10.0 * math.log10(mse_value)

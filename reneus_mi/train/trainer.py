@@ -100,9 +100,9 @@ class TrainingError(ReneusError):
 @dataclass
 class StepStats:
     loss: float
-    color: float
-    trans: float
-    eikonal: float
+    """The loss: the weighted sum of the terms."""
+    terms: dict[str, float]
+    """Each term of the loss by name, before its weight (:func:`~reneus_mi.train.losses.loss_dict`)."""
     psnr: float
     learning_rate: float
     inv_s: float
@@ -112,6 +112,11 @@ class StepStats:
     samples: float
     """Field samples (sections) volume rendered in the step."""
     seconds: float
+
+    def record(self) -> dict:
+        """The step as a line of log.jsonl: the loss, its terms by name, the rest."""
+        values = asdict(self)
+        return {'loss': values.pop('loss'), **values.pop('terms'), **values}
 
 
 class Trainer:
@@ -215,17 +220,14 @@ class Trainer:
         batch = self.batch
         ray, target = self.pixels.batch(it, batch)
         result = self.integrator.render_rays(self.scene, ray)
-        l_color = losses.color_l1(result.color, target)
-        l_trans = losses.transmittance_sparsity(result.sparsity)
-        l_eik = losses.eikonal(result.eikonal, result.n_samples)
-        loss = l_color + cfg.trans_weight * l_trans + cfg.eikonal_weight * l_eik
-        if self.silhouette is not None:
-            loss += cfg.refine.silhouette_weight * self.silhouette(it, self.surroundings.pose)
-        mse = losses.mean(dr.square(dr.detach(result.color) - target))
+        silhouette = None if self.silhouette is None else self.silhouette(it, self.surroundings.pose)
+        terms = losses.loss_dict(result, target, cfg, silhouette)
+        loss = losses.total(terms)
+        mse = losses.mse(result.color, target)
         samples = dr.sum(result.n_samples)
         # Scheduled, the loss terms are computed in the launch that evaluates
         # the gradients rather than in a forward pass of their own.
-        dr.schedule(loss, l_color, l_trans, l_eik, mse, samples)
+        dr.schedule(loss, [term.value for term in terms.values()], mse, samples)
         dr.backward(self.scaler.scale(loss) if self.scaler else loss)
         grads = {key: dr.grad(self.opt[key]) for key in self.opt.keys()}
         # With loss scaling, an overflowing gradient is the scaler's to skip.
@@ -256,14 +258,13 @@ class Trainer:
         self.iteration += 1
         self.best_loss = min(self.best_loss, value)
         elapsed = time.perf_counter() - start
-        m = float(mse[0])
         n_samples = float(samples[0])
         if cfg.sample_budget:
             self.batch = next_batch(cfg, n_samples / batch)
-        return StepStats(loss=value, color=float(l_color[0]), trans=float(l_trans[0]),
-                         eikonal=float(l_eik[0]), psnr=float('inf') if m == 0 else -10.0 * np.log10(m),
-                         learning_rate=lr, inv_s=float(self.field.inv_s()[0]), rays=batch,
-                         rays_per_s=batch / elapsed, samples=n_samples, seconds=elapsed)
+        return StepStats(loss=value, terms={name: float(term.value[0]) for name, term in terms.items()},
+                         psnr=losses.psnr(float(mse[0])), learning_rate=lr,
+                         inv_s=float(self.field.inv_s()[0]), rays=batch, rays_per_s=batch / elapsed,
+                         samples=n_samples, seconds=elapsed)
 
     def _check(self, value: float, it: int) -> None:
         if not np.isfinite(value):
@@ -281,13 +282,17 @@ class Trainer:
         index = self.pixels.view(view, stride)
         colors, normals = [], []
         with dr.suspend_grad():
+            # Stratum midpoints for the render; the step's state comes back whatever happens.
             state, self.integrator.state = self.integrator.state, StepState(step=self.iteration)
-            for s in range(0, dr.width(index), RENDER_CHUNK):
-                chunk = dr.gather(mi.UInt32, index, dr.arange(mi.UInt32, s, min(s + RENDER_CHUNK, dr.width(index))))
-                r = self.integrator.render_rays(self.scene, self.pixels.rays(chunk))
-                colors.append(np.array(r.color).T)
-                normals.append(np.array(dr.normalize(r.normal)).T)
-            self.integrator.state = state
+            try:
+                for s in range(0, dr.width(index), RENDER_CHUNK):
+                    chunk = dr.gather(mi.UInt32, index,
+                                      dr.arange(mi.UInt32, s, min(s + RENDER_CHUNK, dr.width(index))))
+                    r = self.integrator.render_rays(self.scene, self.pixels.rays(chunk))
+                    colors.append(np.array(r.color).T)
+                    normals.append(np.array(dr.normalize(r.normal)).T)
+            finally:
+                self.integrator.state = state
         shape = (len(range(0, self.ds.height, stride)), len(range(0, self.ds.width, stride)), 3)
         return np.concatenate(colors).reshape(shape), np.nan_to_num(np.concatenate(normals)).reshape(shape)
 
@@ -334,7 +339,7 @@ class Trainer:
                     stats = self.step()
                     psnrs = (psnrs + [stats.psnr])[-100:]
                     if self.iteration % cfg.log_every == 0:
-                        log.write(json.dumps({'iteration': self.iteration, **asdict(stats),
+                        log.write(json.dumps({'iteration': self.iteration, **stats.record(),
                                               **self.refined_values()}) + '\n')
                         log.flush()
                     bar.update(1)
