@@ -58,7 +58,7 @@ def child(args) -> None:
 
     import reneus_mi  # noqa: F401
     from reneus_mi.train import runs
-    from reneus_mi.config import replace
+    from reneus_mi.config import replace, with_settings
     from reneus_mi.data import load_dataset
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh
@@ -70,8 +70,8 @@ def child(args) -> None:
     xml = os.path.join(args.out, f'scene_{args.one}.xml')
     write_scene(load_dataset(data), xml, preset=args.one)
     spec = spec_of_scene(xml, None)
-    spec.config = replace(spec.config, **{'train.iterations': 10 ** 7, 'train.validate_every': 0,
-                                          'train.checkpoint_every': 0}, **settings(args.set))
+    spec.config, _ = with_settings(replace(spec.config, **{'train.iterations': 10 ** 7, 'train.validate_every': 0,
+                                                           'train.checkpoint_every': 0}), args.set)
     run_dir = os.path.join(args.out, args.one)
     trainer = runs.make_trainer(spec, run_dir)
     gt = load_mesh(load_dataset(data).gt_mesh)
@@ -105,25 +105,6 @@ def child(args) -> None:
         'iterations': trainer.iteration, 'wall_s': time.perf_counter() - start,
         'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         'curve': curve, 'integrator': trainer.integrator.to_string()}))
-
-
-def settings(pairs: list[str]) -> dict:
-    """``--set dotted.path=value`` pairs (``train.sample_budget=49152``,
-    ``model.render.rr_threshold=0.2``) as typed configuration changes."""
-    import dataclasses
-    import typing
-    from reneus_mi.config import ReconstructionConfig, typed_value
-    out = {}
-    for pair in pairs:
-        key, _, text = pair.partition('=')
-        cls, kind = ReconstructionConfig, None
-        for name in key.split('.'):
-            hints = typing.get_type_hints(cls) if dataclasses.is_dataclass(cls) else {}
-            if name not in hints:
-                raise SystemExit(f'--set {pair}: {key} is not a setting (e.g. train.sample_budget=49152)')
-            cls = kind = hints[name]
-        out[key] = typed_value(text if kind is str else json.loads(text), kind, f'--set {key}')
-    return out
 
 
 def write_doc(results: list[dict], args, command: str, dev: str, load: float) -> None:

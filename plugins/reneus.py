@@ -569,18 +569,23 @@ def _read_properties(props: mi.Properties):
     return name, ModelConfig(field=field_cfg, **sections), field, frame, dataset
 
 
-def property_types(preset_name: str = 'paper', field_kind: str | None = None) -> dict[str, type]:
-    """The XML properties of the integrator's settings and their Python types.
-
-    ``field_<name>`` properties belong to ``field_kind`` (default: the preset's field).
-    """
-    types = {'preset': str, 'field': str, 'field_center': tuple, 'field_scale': float, 'dataset': str}
-    for cls in (RenderConfig, SamplerConfig):
-        types.update(typing.get_type_hints(cls))
-    cls = field_config_class(field_kind or preset(preset_name).model.field.kind, 'field')
-    types.update({f'field_{name}': kind for name, kind in typing.get_type_hints(cls).items()
-                  if name != 'kind'})
-    return types
+def xml_properties(settings: dict) -> dict:
+    """The integrator's XML properties of model settings given by dotted path, as
+    :func:`_read_properties` reads them back: ``model.render.max_depth`` -> ``max_depth``,
+    ``model.sampler.n_coarse`` -> ``n_coarse``, ``model.field.hidden`` -> ``field_hidden``,
+    ``model.field`` (a field configuration) -> ``field`` (its kind)."""
+    out = {}
+    for path, value in settings.items():
+        parts = path.split('.')
+        if parts[:2] == ['model', 'field'] and len(parts) <= 3:
+            out['field_' + parts[2] if len(parts) == 3 else 'field'] = value if len(parts) == 3 else value.kind
+        elif parts[0] == 'model' and len(parts) == 3 and parts[1] in ('render', 'sampler'):
+            out[parts[2]] = value
+        else:
+            raise ReneusError(f'{path}: not a setting of the reneus integrator (its scene holds '
+                              'model.render.*, model.sampler.* and model.field.*; train.* are '
+                              "optimize's)")
+    return out
 
 
 def _get(props: mi.Properties, name: str, kind, default=None):

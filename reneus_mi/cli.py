@@ -2,7 +2,8 @@
 
 Each field of the dataclass becomes ``--field-name``; the string literal that
 follows the field in the class body (its docstring) becomes the help text, so
-the documentation lives in one place.
+the documentation lives in one place. Values are typed by
+:func:`reneus_mi.config.text_value`, as every setting given as text is.
 """
 from __future__ import annotations
 
@@ -12,6 +13,9 @@ import dataclasses
 import inspect
 import textwrap
 import typing
+
+from reneus_mi.config import text_value
+from reneus_mi.errors import ReneusError
 
 
 def field_docs(cls) -> dict[str, str]:
@@ -51,11 +55,21 @@ def add_arguments(parser: argparse.ArgumentParser, cls, *, default_note: str | N
                                help=help_text)
         elif typing.get_origin(kind) is tuple:
             items = typing.get_args(kind)
-            group.add_argument(option, dest=path, type=items[0], nargs=len(items), default=None,
+            group.add_argument(option, dest=path, type=_typed(items[0], path), nargs=len(items), default=None,
                                metavar=items[0].__name__.upper(), help=help_text)
         else:
-            group.add_argument(option, dest=path, type=kind, default=None, metavar=kind.__name__.upper(),
-                               help=help_text)
+            group.add_argument(option, dest=path, type=_typed(kind, path), default=None,
+                               metavar=kind.__name__.upper(), help=help_text)
+
+
+def _typed(kind, path: str):
+    """argparse's ``type``: the text typed as settings are, its error as argparse's."""
+    def convert(text: str):
+        try:
+            return text_value(text, kind, path)
+        except ReneusError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+    return convert
 
 
 def given_arguments(cls, args: argparse.Namespace, prefix: str = '') -> dict:

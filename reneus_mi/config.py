@@ -294,6 +294,62 @@ def typed_value(value, kind, path: str):
     return value
 
 
+def text_value(text: str, kind, path: str):
+    """A setting given as text (a command line) as a value of ``kind``: an int, float, str,
+    ``true``/``false``, numbers separated by commas for a tuple, a field kind's name for the
+    field (its defaults); checked by :func:`typed_value`."""
+    if kind is FieldConfig:
+        return field_config_class(text, path)()
+    value = text
+    try:
+        if kind is bool:
+            value = {'true': True, 'false': False}.get(text.lower(), text)
+        elif kind in (int, float):
+            value = kind(text)
+        elif typing.get_origin(kind) is tuple or kind is tuple:
+            value = [float(v) for v in text.split(',')]
+    except ValueError:
+        pass  # typed_value names what was expected
+    return typed_value(value, kind, path)
+
+
+def setting_type(cfg, path: str):
+    """The type that ``cfg`` declares for the dotted ``path`` (``model.sampler.n_coarse``: int;
+    under ``model.field`` the fields of the configuration's own field kind)."""
+    node, kind, done = cfg, None, []
+    for name in path.split('.'):
+        if not dataclasses.is_dataclass(node):
+            raise ReneusError(f"{path}: {'.'.join(done)} is a value, not a group of settings")
+        known = [f.name for f in dataclasses.fields(node)]
+        if name not in known:
+            where = '.'.join(done) or 'the configuration'
+            raise ReneusError(f"{path}: not a setting; {where} has {', '.join(known)}")
+        kind, node = typing.get_type_hints(type(node))[name], getattr(node, name)
+        done.append(name)
+    return kind
+
+
+def parse_setting(cfg, text: str) -> tuple[str, object]:
+    """``'model.sampler.n_coarse=32'`` as ``('model.sampler.n_coarse', 32)``, typed as ``cfg``
+    declares it: the one reader of settings given as text (``--set`` of scene, optimize and
+    the benchmarks)."""
+    path, sep, value = text.partition('=')
+    if not sep or not path:
+        raise ReneusError(f'{text!r}: expected PATH=VALUE (e.g. model.sampler.n_coarse=32)')
+    return path, text_value(value, setting_type(cfg, path), path)
+
+
+def with_settings(cfg, texts) -> tuple[object, dict]:
+    """``cfg`` with the settings ``texts`` (``PATH=VALUE`` each, in order: ``model.field=hashgrid``
+    before the new field's own settings), each checked; and the changes by path."""
+    changes = {}
+    for text in texts:
+        path, value = parse_setting(cfg, text)
+        cfg = replace(cfg, **{path: value})
+        changes[path] = value
+    return cfg, changes
+
+
 def replace(cfg, **changes):
     """``dataclasses.replace`` for nested configs: keys may be dotted paths (``train.iterations``)."""
     nested: dict[str, dict] = {}

@@ -33,6 +33,10 @@ def main(argv=None) -> int:
     parser.add_argument('--resume', action='store_true', help="continue the output folder's run")
     parser.add_argument('--demo', action='store_true', help='reconstruct the embedded demo scene')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
+    parser.add_argument('--set', dest='settings', metavar='PATH=VALUE', action='append', default=[],
+                        help='any setting by its dotted path, after the options below: '
+                             'model.sampler.n_coarse=32, train.refine.after=200 (repeatable; typed '
+                             'as reneus_mi.config declares it)')
     cli.add_arguments(parser, TrainConfig, default_note="the preset's")
     args = parser.parse_args(argv)
     try:
@@ -44,7 +48,7 @@ def main(argv=None) -> int:
 
 
 def run(args) -> str:
-    from reneus_mi.config import replace
+    from reneus_mi.config import replace, with_settings
     from reneus_mi.data.synth import demo_scene
     from reneus_mi.train import runs
     from reneus_mi.train.run_folder import RunFolder, recent_psnr
@@ -71,7 +75,8 @@ def run(args) -> str:
         scene = demo_scene(os.path.abspath(out).rstrip(os.sep) + '_data') if args.demo else args.scene
         spec = runs.spec_of_scene(scene, args.data)
     given = cli.given_arguments(TrainConfig, args)
-    spec.config = replace(spec.config, **{f'train.{k}': v for k, v in given.items()})
+    spec.config, _ = with_settings(replace(spec.config, **{f'train.{k}': v for k, v in given.items()}),
+                                   args.settings)
     result = runs.run(spec, out, resume=args.resume, progress=not args.quiet)
     if 'failure' in result:
         raise ReneusError(result['failure'])

@@ -203,6 +203,17 @@ def test_optimize_refinement_switches(world, tmp_path, args, expected):
             watch=[tmp_path])
 
 
+@pytest.mark.parametrize('setting, expected', [
+    ('model.sampler.n_coarse=many', ("model.sampler.n_coarse='many': expected an integer",)),
+    ('train.iteration=3', ('train.iteration: not a setting', 'iterations')),
+    ('model.render.gamma=0', ('gamma=0.0; expected a number > 0',)),
+    ('n_coarse', ("'n_coarse': expected PATH=VALUE",)),
+], ids=['type', 'unknown', 'range', 'no_value'])
+def test_optimize_set(world, tmp_path, setting, expected):
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, '--set', setting], *expected,
+            watch=[tmp_path])
+
+
 def test_optimize_missing_data(world, tmp_path):
     refused(optimize.main, train(world, tmp_path / 'nowhere', tmp_path),
             str(tmp_path / 'nowhere'), 'dataset folder is missing', watch=[tmp_path])

@@ -325,3 +325,14 @@ def test_time_budget_stops_with_a_mesh(scene_xml, tmp_path):
     done = checkpoint.load_meta(str(out / 'checkpoint.npz'))['iteration']
     assert 0 < done < 100000 and logged(out / 'log.jsonl')[-1] == done
     assert len(trimesh.load(out / 'mesh.ply', force='mesh').faces) > 0
+
+
+def test_set_reaches_the_run(scene_xml, tmp_path):
+    """--set takes any setting by its dotted path, after the options; config.json records it."""
+    out = tmp_path / 'run'
+    train = [a if a != str(ITERATIONS) else '1' for a in CLI_TRAIN]
+    assert optimize.main([scene_xml, '-o', str(out), *train, '--warm-up', '3', '--set', 'train.warm_up=1',
+                          '--set', 'model.sampler.n_coarse=4', '--set', 'train.refine.after=7']) == 0
+    config = json.loads((out / 'config.json').read_text())
+    assert config['train']['warm_up'] == 1 and config['train']['refine']['after'] == 7
+    assert config['model']['sampler']['n_coarse'] == 4

@@ -116,17 +116,28 @@ def test_cli(tmp_path, capsys):
     assert [(e.tag, e.get('value')) for e in integ] == [('integer', '5'), ('boolean', 'true')]
     assert tuple(mi.load_file(str(xml)).sensors()[0].film().size()) == (W, H)
 
-    # The reneus integrator's settings are typed as its configuration declares them.
+    # The reneus integrator's settings, by their dotted paths, typed as its configuration
+    # declares them, written under their XML names.
     reneus = tmp_path / 'reneus.xml'
-    main([str(tmp_path / 'data'), '-o', str(reneus), '--preset', 'cpu', '--set', 'max_depth=3',
-          '--set', 'upsample_s=32', '--set', 'field_hidden=48', '--set', 'terminal=black'])
+    main([str(tmp_path / 'data'), '-o', str(reneus), '--preset', 'cpu', '--set', 'model.render.max_depth=3',
+          '--set', 'model.sampler.upsample_s=32', '--set', 'model.field.hidden=48',
+          '--set', 'model.render.terminal=black'])
     integ = ET.parse(reneus).getroot().find('integrator')
     props = {e.get('name'): (e.tag, e.get('value')) for e in integ}
     assert props['preset'] == ('string', 'cpu') and props['max_depth'] == ('integer', '3')
     assert props['upsample_s'] == ('float', '32.0') and props['field_hidden'] == ('integer', '48')
     assert props['terminal'] == ('string', 'black')
-    for bad, message in (('n_coarse=many', 'n_coarse=many: expected int'),
-                         ('max_detph=3', 'max_detph: not a setting of the reneus integrator')):
+    assert mi.load_file(str(reneus)).integrator().model.render.max_depth == 3
+    # Another field kind, then a setting of its own.
+    grid = tmp_path / 'grid.xml'
+    main([str(tmp_path / 'data'), '-o', str(grid), '--preset', 'cpu', '--set', 'model.field=hashgrid',
+          '--set', 'model.field.n_levels=4'])
+    assert mi.load_file(str(grid)).integrator().model.field.n_levels == 4
+    for bad, message in (('model.sampler.n_coarse=many', "model.sampler.n_coarse='many': expected an integer"),
+                         ('model.render.max_detph=3', 'model.render.max_detph: not a setting'),
+                         ('model.render.max_depth=-1', 'max_depth=-1; expected an integer >= 0'),
+                         ('model.field=nerf', "model.field.kind='nerf': unknown field kind"),
+                         ('train.iterations=5', 'train.iterations: not a setting of the reneus integrator')):
         with pytest.raises(SystemExit) as exit_info:
             main([str(tmp_path / 'data'), '-o', str(tmp_path / 'bad.xml'), '--set', bad])
         assert message in str(exit_info.value.code)

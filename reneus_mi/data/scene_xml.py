@@ -36,7 +36,7 @@ SAMPLE_COUNT = 16
 #: Relative focal-length difference above which fx != fy is reported.
 _SQUARE_PIXEL_TOL = 1e-4
 #: Integrator properties that write_scene sets itself for the reneus integrator.
-RESERVED = ('dataset', 'field_center', 'field_scale')
+_RESERVED = ('dataset', 'field_center', 'field_scale')
 
 
 def sensor_params(K: np.ndarray, c2w: np.ndarray, width: int, height: int) -> dict:
@@ -101,7 +101,7 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
     ``container`` names the mesh file the scene gives Mitsuba (default: the dataset's)."""
     ds.validate()
     container = container or ds.container
-    clash = [k for k in integrator_settings if integrator == 'reneus' and k in RESERVED]
+    clash = [k for k in integrator_settings if integrator == 'reneus' and k in _RESERVED]
     if clash:
         raise ReneusError(f"integrator settings {clash}: set by write_scene from the dataset")
     shape_type = None if container is None else mesh_type(container)
