@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from reneus_mi import guards
 from reneus_mi.errors import ReneusError, exit_on_error
@@ -37,7 +38,7 @@ def _table(result: dict) -> str:
     return '\n'.join(f'{name:<{width}}  {value}' for name, value in rows)
 
 
-def main(argv: list[str] | None = None) -> dict:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='python -m reneus_mi.evaluate',
         description='Chamfer-L1 x100 and F-score of a reconstructed mesh against the ground truth '
@@ -81,8 +82,8 @@ def main(argv: list[str] | None = None) -> dict:
             atomic_write_text(args.json, json.dumps({'pred': args.pred, 'gt': args.gt, **result},
                                                     indent=2))
     print(_table(result))
-    return result
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

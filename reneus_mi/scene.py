@@ -9,6 +9,7 @@ checked as the configuration declares it, and written under its XML name.
 from __future__ import annotations
 
 import argparse
+import sys
 import warnings
 
 from reneus_mi import guards
@@ -29,7 +30,7 @@ def _literal(text: str) -> bool | int | float | str:
     return text
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='python -m reneus_mi.scene',
         description='Write a Mitsuba 3 scene (container, ambient light, first camera, '
@@ -70,7 +71,8 @@ def main(argv: list[str] | None = None) -> None:
             warnings.warn(f"{args.data_dir}: dataset names no container mesh; "
                           "the scene has none")
         write_scene(ds, args.output, integrator=args.integrator, overwrite=args.overwrite, **settings)
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())
