@@ -1,9 +1,11 @@
-"""Shared scene builders for comparing the reneus integrator with Mitsuba's path tracer."""
+"""Reference scenes and shapes shared by the tests: scenes that the reneus integrator and
+Mitsuba's path tracer both render, a glass cube for quick renders, a square for distances, points in a ball."""
 from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+import trimesh
 
 SPHERE_RADIUS = 0.3
 SPHERE_COLOR = (0.9, 0.35, 0.1)
@@ -85,3 +87,35 @@ def path_reference(scene, spp: int, seed: int = 0) -> tuple[np.ndarray, np.ndarr
 def reneus_pixels(scene) -> np.ndarray:
     result = scene.integrator().render_rays(scene, pixel_rays(scene))
     return np.array(result.L).T
+
+
+def glass_scene(**integrator):
+    """A 3x3 view of a glass cube (IOR 1.45) in ambient 0.8 through ``reneus`` (id ``field``)."""
+    return mi.load_dict({
+        'type': 'scene', 'integrator': {'type': 'reneus', 'id': 'field', **integrator},
+        'sensor': {'type': 'perspective', 'fov': 40,
+                   'to_world': mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
+                   'film': {'type': 'hdrfilm', 'width': 3, 'height': 3}},
+        'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': 0.8}},
+        'glass': {'type': 'cube', 'bsdf': {'type': 'dielectric', 'int_ior': 1.45}}})
+
+
+def square(n=20):
+    """The unit square in the z = 0 plane, ``n`` x ``n`` cells of two triangles."""
+    t = np.linspace(0.0, 1.0, n + 1)
+    x, y = np.meshgrid(t, t, indexing='ij')
+    verts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing='ij')
+    v00 = (i * (n + 1) + j).ravel()
+    v10, v01, v11 = v00 + n + 1, v00 + 1, v00 + n + 2
+    faces = np.concatenate([np.stack([v00, v10, v11], 1), np.stack([v00, v11, v01], 1)])
+    return trimesh.Trimesh(verts, faces, process=False)
+
+
+def ball_points(n, seed, r_min=0.0, r_max=1.0):
+    """Points with radii uniform in [r_min, r_max] and uniform directions."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(3, n))
+    d /= np.linalg.norm(d, axis=0)
+    r = rng.uniform(r_min, r_max, n)
+    return mi.Point3f((d * r).astype(np.float32)), r

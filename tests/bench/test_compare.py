@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-BENCH = os.path.join(os.path.dirname(__file__), '..', 'bench')
+BENCH = os.path.join(os.path.dirname(__file__), '..', '..', 'bench')
 sys.path.insert(0, BENCH)
 import compare  # noqa: E402
 import ablation_depth  # noqa: E402

@@ -8,8 +8,8 @@ dataset, the run, the case's own folder) is byte-for-byte unchanged, with no
 new file written. A few cases run the command as a real process to check the
 exit status and stderr of the interpreter itself.
 
-Everything reuses the 12-view 16x16 statuette dataset of ``test_checkpoint``
-and one 2-step run, made once per module; a case copies what it spoils.
+Everything reuses the 12-view 16x16 statuette dataset (``tiny.py``) and one
+2-step run, made once per module; a case copies what it spoils.
 Cases that would train are refused during validation, before any step.
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ import trimesh
 
 from reneus_mi import evaluate, extract, optimize, scene, synth
 from reneus_mi.render import __main__ as render
-from test_checkpoint import tiny_dataset
+from tiny import assert_same_state, new_trainer, train_state
 
 TRAIN = ['--iterations', '2', '--checkpoint-every', '1', '--batch-rays', '64', '--warm-up', '1',
          '--validate-every', '0', '--mesh-resolution', '16', '--quiet']
@@ -94,10 +94,10 @@ def small_machine(monkeypatch):
 
 # ------------------------------------------------------------------ fixtures
 @pytest.fixture(scope='module')
-def world(tmp_path_factory):
+def world(scene_xml, tmp_path_factory):
     """The tiny dataset (Blender and NeuS), its scene, a 2-step run and its checkpoint."""
-    root = tmp_path_factory.getbasetemp() / 'tiny_statuette'
-    xml = tiny_dataset(root)
+    xml = scene_xml
+    root = os.path.dirname(xml)
     run = tmp_path_factory.mktemp('bad_inputs') / 'run'
     assert optimize.main([xml, '-o', str(run), *TRAIN]) == 0
     return {'root': str(root), 'scene': xml, 'data': os.path.join(root, 'box'),
@@ -637,7 +637,6 @@ def test_resume_removes_a_stray_temporary(world, run_copy):
 
 def test_interrupted_step_leaves_the_batch_stream_alone(world, tmp_path):
     """Ctrl-C inside a step: redoing it draws what the unbroken run drew (batches depend on the step)."""
-    from test_checkpoint import assert_same_state, new_trainer, train_state
     unbroken = new_trainer(world['scene'], tmp_path / 'a')
     unbroken.step()
     trainer = new_trainer(world['scene'], tmp_path / 'b')
@@ -656,7 +655,6 @@ def test_interrupted_step_leaves_the_batch_stream_alone(world, tmp_path):
 
 def test_validation_without_surface_goes_on(world, tmp_path, monkeypatch):
     from reneus_mi.errors import NoSurfaceError
-    from test_checkpoint import new_trainer
     trainer = new_trainer(world['scene'], tmp_path / 'out')
 
     def no_surface(*args, **kwargs):
@@ -705,7 +703,6 @@ def test_optimize_help_states_each_default_once(capsys):
 
 def test_final_mesh_without_surface_says_the_run_can_go_on(world, tmp_path, monkeypatch):
     from reneus_mi.errors import NoSurfaceError
-    from test_checkpoint import new_trainer
     trainer = new_trainer(world['scene'], tmp_path / 'out')
     trainer.iteration = trainer.cfg.iterations          # nothing left to train
 

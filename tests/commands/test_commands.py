@@ -5,7 +5,7 @@ import importlib
 import os
 import tomllib
 
-ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..'))
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..'))
 COMMANDS = {'optimize': 'reneus_mi.optimize', 'render': 'reneus_mi.render.__main__',
             'extract': 'reneus_mi.extract', 'evaluate': 'reneus_mi.evaluate', 'scene': 'reneus_mi.scene',
             'synth': 'reneus_mi.synth'}

@@ -9,6 +9,8 @@ import pytest
 import trimesh
 
 from reneus_mi.data import Dataset, load_dataset, write_dataset
+from reneus_mi.data.dataset import check_same_dataset, dataset_fingerprint
+from reneus_mi.errors import ReneusError
 from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.data.masks import container_masks
 from reneus_mi.data.images import read_image, write_image
@@ -416,3 +418,23 @@ def test_matrix_messages_name_the_defect():
         decompose_projection(m, 'world_mat_3')
     with pytest.raises(ValueError, match=r"c2w: entry \[2\]\[1\] is nan"):
         check_c2w(m, 'c2w')
+
+
+def test_dataset_fingerprint():
+    class DS:
+        root, width, height, names = '/d', 4, 3, ['a.png', 'b.png']
+        c2w = np.stack([np.eye(4)] * 2)
+
+        def __len__(self):
+            return 2
+    saved = dataset_fingerprint(DS())
+    check_same_dataset(saved, DS(), 'config.json')
+    other = DS()
+    other.names = ['a.png', 'c.png']
+    with pytest.raises(ReneusError, match=r"differs from the run's \(names"):
+        check_same_dataset(saved, other, 'config.json')
+    moved = DS()
+    moved.c2w = moved.c2w.copy()
+    moved.c2w[1, 0, 3] = 0.5
+    with pytest.raises(ReneusError, match='other camera positions'):
+        check_same_dataset(saved, moved, 'config.json')

@@ -149,25 +149,10 @@ def test_cli(tmp_path, capsys):
     assert not (tmp_path / 'other.xml').exists()
 
 
-def test_container_parts_apart_or_hollow_pass_overlapping_fail():
-    import trimesh
-    from reneus_mi.geometry.container import _check_disjoint
-    outer = trimesh.creation.box(extents=(2, 2, 2))
-    apart = trimesh.creation.box().apply_translation((5, 0, 0))
-    cavity = trimesh.creation.box()
-    cavity.invert()
-    _check_disjoint([outer, apart], 'scene.xml')
-    _check_disjoint([outer, cavity], 'scene.xml')      # a hollow vessel
-    with pytest.raises(ValueError, match='scene.xml: container parts overlap'):
-        _check_disjoint([outer, trimesh.creation.box()], 'scene.xml')    # glass in glass
-    with pytest.raises(ValueError, match='container parts overlap'):
-        _check_disjoint([outer, trimesh.creation.box().apply_translation((0.8, 0.8, 0.8))], 's')
-
-
 def test_container_mitsuba_cannot_read_gets_a_triangulated_copy(tmp_path):
     # Blender writes PLY quads, which Mitsuba's PLY reader refuses: the scene names a
     # triangulated copy beside itself, the same surface, and leaves the dataset alone.
-    blender = os.path.join(os.path.dirname(__file__), 'data', 'containers', 'blender_cube.ply')
+    blender = os.path.join(os.path.dirname(__file__), '..', 'fixtures', 'containers', 'blender_cube.ply')
     ds = make_dataset(tmp_path / 'data')
     with open(blender, 'rb') as src, open(ds.container, 'wb') as dst:
         dst.write(src.read())

@@ -15,18 +15,10 @@ import pytest
 import reneus_mi  # noqa: F401  (sets the variant)
 from reneus_mi.fields import BoxField, NeuSField, SphereField, TorusField, load_field
 from reneus_mi.fields.base import Field
+from reference import ball_points
 
 TINY = dict(hidden=32, layers=2, multires=2, n_features=4, color_hidden=16, color_layers=2,
             multires_view=1)
-
-
-def ball_points(n, seed, r_min=0.0, r_max=1.0):
-    """Points with radii uniform in [r_min, r_max] and uniform directions."""
-    rng = np.random.default_rng(seed)
-    d = rng.normal(size=(3, n))
-    d /= np.linalg.norm(d, axis=0)
-    r = rng.uniform(r_min, r_max, n)
-    return mi.Point3f((d * r).astype(np.float32)), r
 
 
 def to_numpy(p):

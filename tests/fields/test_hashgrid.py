@@ -7,6 +7,7 @@ with a uniform incoming gradient (e.g. ``dr.sum`` straight on a network
 output), Dr.Jit 1.5's cooperative-vector backward on LLVM credits a bias with
 one lane's gradient instead of the sum over lanes.
 """
+import functools
 import math
 
 import drjit as dr
@@ -14,7 +15,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-import reneus_mi  # noqa: F401  (sets the variant)
+import reference
 from reneus_mi.fields import FIELD_KINDS, HashGridField, load_field
 from reneus_mi.render.ray_samplers import neus_alpha
 
@@ -23,12 +24,8 @@ TINY = dict(n_levels=4, features_per_level=2, log2_hashmap_size=12, base_resolut
             multires_view=1, levels_start=2, level_steps=10)
 
 
-def ball_points(n, seed, r_min=0.0, r_max=0.9):
-    rng = np.random.default_rng(seed)
-    d = rng.normal(size=(3, n))
-    d /= np.linalg.norm(d, axis=0)
-    r = rng.uniform(r_min, r_max, n)
-    return mi.Point3f((d * r).astype(np.float32)), r
+#: Points well inside the grid (radius 0.9 of its unit sphere).
+ball_points = functools.partial(reference.ball_points, r_max=0.9)
 
 
 def trained_looking(field, amplitude=0.3):

@@ -1,28 +1,11 @@
-"""Chamfer-L1 x100 and F-score against analytic values, and the evaluation CLI."""
-import json
-import subprocess
-import sys
-
+"""Chamfer-L1 x100 and F-score against analytic values."""
 import numpy as np
 import pytest
 import trimesh
 
 import reneus_mi  # noqa: F401  (sets the variant)
-from reneus_mi.evaluate import main
 from reneus_mi.geometry.chamfer import chamfer
-from reneus_mi.geometry.mesh import load_mesh
-
-
-def square(n=20):
-    """The unit square in the z = 0 plane, ``n`` x ``n`` cells of two triangles."""
-    t = np.linspace(0.0, 1.0, n + 1)
-    x, y = np.meshgrid(t, t, indexing='ij')
-    verts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
-    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing='ij')
-    v00 = (i * (n + 1) + j).ravel()
-    v10, v01, v11 = v00 + n + 1, v00 + 1, v00 + n + 2
-    faces = np.concatenate([np.stack([v00, v10, v11], 1), np.stack([v00, v11, v01], 1)])
-    return trimesh.Trimesh(verts, faces, process=False)
+from reference import square
 
 
 def shifted(mesh, offset):
@@ -99,55 +82,3 @@ def test_container_drops_fake_walls():
     assert r['n_pred'] == pytest.approx(share * r['n_points'], rel=0.05)
     # What is left is the object alone, down to the sampling floor 0.5 sqrt(A / N) ≈ 0.007.
     assert r['accuracy'] < 0.01
-
-
-def write(mesh, path):
-    mesh.export(path)
-    return str(path)
-
-
-def test_cli_prints_and_writes_the_numbers(tmp_path):
-    gt = square()
-    pred = write(shifted(gt, [0, 0, 0.02]), tmp_path / 'pred.ply')
-    out = tmp_path / 'out.json'
-    proc = subprocess.run([sys.executable, '-m', 'reneus_mi.evaluate', pred, write(gt, tmp_path / 'gt.ply'),
-                           '--postprocess', 'none', '--json', str(out)],
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    lines = dict(line.rsplit('  ', 1) for line in proc.stdout.strip().splitlines())
-    lines = {k.strip(): v.strip() for k, v in lines.items()}
-    assert float(lines['Chamfer-L1 x100']) == pytest.approx(2.0, rel=1e-4)
-    assert float(lines['F-score @ 0.01']) == 0.0
-    assert lines['post-processing'] == 'none'
-    saved = json.loads(out.read_text())
-    assert saved['chamfer'] == pytest.approx(2.0, rel=1e-4) and saved['postprocess'] == 'none'
-
-
-def test_cli_bad_files_name_the_file(tmp_path, capsys):
-    gt = write(trimesh.creation.icosphere(subdivisions=2), tmp_path / 'gt.ply')
-    empty = tmp_path / 'empty.ply'
-    empty.write_text('')
-
-    def error(argv) -> str:
-        with pytest.raises(SystemExit) as e:
-            main(argv)
-        err = e.value.code
-        assert isinstance(err, str) and '\n' not in err and err.startswith('error: ')
-        return err
-
-    for bad in (str(empty), str(tmp_path / 'missing.obj')):
-        assert bad in error([bad, gt])
-    assert '--container' in error([gt, gt, '--postprocess', 'crop'])
-    # An open container has no inside.
-    open_box = trimesh.creation.box()
-    open_box.update_faces(np.arange(len(open_box.faces)) > 0)
-    path = write(open_box, tmp_path / 'open.ply')
-    err = error([gt, gt, '--container', path])
-    assert path in err and 'closed' in err
-
-
-def test_load_mesh_rejects_a_point_cloud(tmp_path):
-    path = tmp_path / 'cloud.ply'
-    trimesh.PointCloud(np.random.default_rng(0).random((10, 3))).export(path)
-    with pytest.raises(ValueError, match='cloud.ply'):
-        load_mesh(path)

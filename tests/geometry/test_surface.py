@@ -6,7 +6,6 @@ import trimesh
 import reneus_mi  # noqa: F401  (sets the variant)
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.fields.analytic import SphereField, TorusField
-from reneus_mi.geometry.container import inside
 from reneus_mi.geometry.surface import extract_mesh, postprocess, sdf_grid
 
 
@@ -89,29 +88,6 @@ def test_crop_removes_what_lies_outside_the_container():
         postprocess(inner, 'crop')
     with pytest.raises(ValueError, match='largest, crop, none'):
         postprocess(inner, 'biggest')
-
-
-def test_inside_against_analytic_shapes():
-    rng = np.random.default_rng(0)
-    points = rng.uniform(-1.0, 1.0, (20000, 3))
-    # A rotated box: inside when the rotated-back point is in the box.
-    rotation = trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])
-    box = trimesh.creation.box(extents=(1.2, 0.8, 1.0), transform=rotation)
-    local = points @ rotation[:3, :3]
-    expected = np.all(np.abs(local) < [0.6, 0.4, 0.5], axis=1)
-    assert np.array_equal(inside(points, box), expected)
-    # An icosphere, away from its faceted surface.
-    ball = sphere(0.7, (0, 0, 0), 3)
-    r = np.linalg.norm(points, axis=1)
-    clear = np.abs(r - 0.7) > 0.01
-    assert np.array_equal(inside(points, ball)[clear], (r < 0.7)[clear])
-
-
-def test_inside_rejects_an_open_container():
-    open_box = trimesh.creation.box()
-    open_box.update_faces(np.arange(len(open_box.faces)) > 0)
-    with pytest.raises(ValueError, match='not closed'):
-        inside(np.zeros((1, 3)), open_box)
 
 
 def _body_with_fragments():

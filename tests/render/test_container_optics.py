@@ -23,7 +23,7 @@ RES = 24
 MEAN_TOL, P99_TOL = 0.003, 0.02
 #: Box files exported by Blender 5.0.1 (bpy): its cube scaled to the block, unrotated; the PLYs
 #: hold quads (Blender's default), which Mitsuba's own PLY reader refuses.
-BLENDER = os.path.join(os.path.dirname(__file__), 'data', 'containers')
+BLENDER = os.path.join(os.path.dirname(__file__), '..', 'fixtures', 'containers')
 ROTATION = np.array(BLOCK_ROTATION.matrix)[:3, :3]
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from reneus_mi.config import replace
 
-SCENES = sorted(glob.glob(os.path.join(os.path.dirname(__file__), '..', 'scenes', '*.xml')))
+SCENES = sorted(glob.glob(os.path.join(os.path.dirname(__file__), '..', '..', 'scenes', '*.xml')))
 RES = 16
 
 

@@ -15,7 +15,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from reference import path_reference, path_scene, reneus_pixels, reneus_scene
+from reference import glass_scene, path_reference, path_scene, reneus_pixels, reneus_scene
 from reneus_mi.errors import user_message
 from reneus_mi.plugins import reneus as plugin
 
@@ -286,3 +286,49 @@ def test_russian_roulette_is_unbiased():
     assert random.mean() > 0.3   # the roulette is at work on many pixels
     z = np.abs(mean - tree)[random] / se[random]
     assert z.mean() < 1.2 and np.percentile(z, 99) < 4.0, (z.mean(), np.percentile(z, 99))
+
+
+def test_partial_update_keeps_the_other_keys():
+    scene = glass_scene(preset='tiny')
+    field = scene.integrator().field
+    params = mi.traverse(scene)
+    sdf = np.array(params['field.sdf.weights'])
+    params['field.variance'] = mi.Float(0.6)
+    params.update()
+    assert float(field.inv_s()[0]) == pytest.approx(np.exp(6.0), rel=1e-6)
+    assert np.array_equal(np.array(field.params()['sdf.weights']), sdf)
+    params['field.sdf.weights'] = mi.Float(sdf * 0.5)
+    params.update()
+    assert float(field.inv_s()[0]) == pytest.approx(np.exp(6.0), rel=1e-6)
+    assert np.allclose(np.array(field.params()['sdf.weights']), sdf * 0.5)
+
+
+def test_hand_written_adam_loop_moves_the_field():
+    """The notebook's loop: gradients reach the field through mi.render, updates land in it."""
+    scene = glass_scene(preset='tiny', n_coarse=16, n_fine=0)
+    params = mi.traverse(scene)
+    keys = [k for k in params.keys() if k.startswith('field.')]
+    opt = mi.ad.Adam(lr=1e-2, params={k: params[k] for k in keys})
+    params.update(opt)
+    before = np.array(scene.integrator().field.params()['color.weights'])
+    image = mi.render(scene, params, spp=1, seed=0)
+    dr.backward(dr.mean(dr.abs(image - 0.3), axis=None))
+    assert all(dr.any(dr.grad(opt[k]) != 0) for k in ('field.color.weights', 'field.sdf.weights'))
+    opt.step()
+    params.update(opt)
+    after = np.array(scene.integrator().field.params()['color.weights'])
+    assert np.allclose(after, np.array(opt['field.color.weights']))
+    assert np.abs(after - before).max() > 1e-3
+
+
+@pytest.mark.parametrize('prop, value, message', [
+    ('n_coarse', 'many', "n_coarse='many': expected an integer"),
+    ('max_depth', 'two', "max_depth='two': expected an integer"),
+    ('field_hidden', 2.5, 'field_hidden=2.5: expected an integer'),
+    ('preset', 'huge', "preset='huge'; expected one of"),
+    ('field_hiden', 16, "unknown parameter(s) 'field_hiden'"),
+])
+def test_integrator_settings_are_typed_and_named(prop, value, message):
+    with pytest.raises(Exception) as e:
+        glass_scene(**{prop: value})
+    assert message in user_message(e.value)

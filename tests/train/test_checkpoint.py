@@ -3,17 +3,7 @@
 Everything trains a tiny field (width 16, 2 layers, 8 + 8 samples, 64 rays per
 step) on a 12-view 16x16 dataset of the statuette in its glass box.
 
-Tolerances. Dr.Jit's reverse mode accumulates the weight gradients with
-atomic float adds from parallel threads, so with more than one thread two
-identical runs differ in the last bits. Measured on a 2-core machine after 6
-steps: field parameters differ by <= 3e-7 (absolute), Adam's moments by
-<= 1.2e-5 of their largest magnitude; with one thread every array is bitwise
-equal, which the tests assert. The multi-threaded tolerances, 1e-5 on the
-parameters and 1e-3 relative on the moments, sit >= 30x and >= 80x above that
-noise, and >= 50x and >= 12x below the error of a state one step off (a
-checkpoint holding the weights from before the last update gave 5e-4..7e-4
-on the parameters, 1.2e-2..1.7e-1 relative on the moments) and further below
-another seed's (3.5e-3; 0.16..1.2).
+The tolerances of the comparisons are explained in ``tiny.py``.
 """
 from __future__ import annotations
 
@@ -23,108 +13,14 @@ import os
 import subprocess
 import sys
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
 
-from reneus_mi.train import checkpoint, runs
-from reneus_mi.config import replace
-from reneus_mi.train.runs import spec_of_scene
-from reneus_mi.train.trainer import Trainer, TrainingError
-
-PARAM_ATOL = 1e-5
-MOMENT_RTOL = 1e-3
-
-
-def tiny_dataset(root) -> str:
-    """Render (once per pytest session folder) the tiny dataset; return its scene XML."""
-    from reneus_mi.data import load_dataset
-    from reneus_mi.data.scene_xml import write_scene
-    from reneus_mi.data.synth import make_dataset
-    root = str(root)
-    data = os.path.join(root, 'box')
-    if not os.path.isfile(os.path.join(data, 'transforms.json')):
-        make_dataset('statuette', root, views=12, res=16, spp=16, subsets=('box',))
-    scene = os.path.join(root, 'scene_tiny.xml')
-    if not os.path.isfile(scene):
-        write_scene(load_dataset(data), scene, preset='tiny')
-    return scene
-
-
-@pytest.fixture(scope='module')
-def scene_xml(tmp_path_factory):
-    return tiny_dataset(tmp_path_factory.getbasetemp() / 'tiny_statuette')
-
-
-@pytest.fixture
-def one_thread():
-    old = dr.thread_count()
-    dr.set_thread_count(1)
-    yield
-    dr.set_thread_count(old)
-
-
-def tiny_spec(scene_xml: str, **train) -> runs.RunSpec:
-    """The tiny preset's run of the scene, with training settings changed."""
-    spec = spec_of_scene(scene_xml, None)
-    spec.config = replace(spec.config, **{f'train.{k}': v for k, v in train.items()})
-    return spec
-
-
-def new_trainer(scene_xml: str, out, **cfg) -> Trainer:
-    trainer = runs.make_trainer(tiny_spec(scene_xml, **cfg), str(out))
-    os.makedirs(str(out), exist_ok=True)
-    return trainer
-
-
-def train_state(trainer: Trainer) -> dict:
-    """Parameters, Adam moments and step counts of the optimiser, by the field's names."""
-    state = {}
-    for key in trainer.opt.keys():
-        name = trainer.names[key]
-        _, _, _, (t, m, v, _) = trainer.opt.state[key]
-        state[f'param/{name}'] = np.array(trainer.opt[key]).ravel()
-        state[f'adam/{name}/m'] = np.array(m).ravel()
-        state[f'adam/{name}/v'] = np.array(v).ravel()
-        state[f'adam/{name}/t'] = np.array(t).ravel().astype(np.int64)
-    return state
-
-
-def file_state(path) -> dict:
-    """The same arrays read from a checkpoint file (refined surroundings as parameters)."""
-    with np.load(str(path), allow_pickle=False) as f:
-        return {k.replace('surroundings/', 'param/'): f[k] for k in f.files
-                if k.startswith(('param/', 'adam/', 'surroundings/'))}
-
-
-def differences(a: dict, b: dict) -> dict:
-    """Largest difference per array: absolute for parameters, relative to max|a| for moments."""
-    assert sorted(a) == sorted(b)
-    out = {}
-    for k in a:
-        assert a[k].shape == b[k].shape, k
-        d = float(np.max(np.abs(a[k].astype(np.float64) - b[k]))) if a[k].size else 0.0
-        if k.startswith('adam/') and not k.endswith('/t'):
-            d /= max(float(np.max(np.abs(a[k]))), 1e-30)
-        out[k] = d
-    return out
-
-
-def assert_same_state(a: dict, b: dict, *, exact: bool) -> None:
-    if exact:
-        unequal = [k for k in a if not np.array_equal(a[k], b[k])]
-        assert not unequal, f'not bitwise equal: {unequal}; differences {differences(a, b)}'
-        return
-    diff = differences(a, b)
-    for k, d in diff.items():
-        tol = 0 if k.endswith('/t') else PARAM_ATOL if k.startswith('param/') else MOMENT_RTOL
-        assert d <= tol, f'{k}: difference {d:.3g} > {tol}; all: {diff}'
-
-
-def run_steps(trainer: Trainer, n: int) -> None:
-    for _ in range(n):
-        trainer.step()
+from reneus_mi.train import checkpoint
+from reneus_mi.train.trainer import TrainingError
+from tiny import (MOMENT_RTOL, PARAM_ATOL, assert_same_state, differences, file_state, new_trainer,
+                  poison_run, run_steps, train_state)
 
 
 # --------------------------------------------------------------------- resume
@@ -241,38 +137,6 @@ def test_failed_write_leaves_previous_checkpoint(scene_xml, tmp_path, monkeypatc
 
 
 # ----------------------------------------------------------------------- NaN
-def poison_run(scene_xml, out, where: str, at: int = 3, monkeypatch=None) -> Trainer:
-    """A trainer (checkpoint every step) whose ``where`` turns NaN from step ``at`` on.
-
-    ``where``: 'radiance' or 'geometry' (the field's outputs), or 'loss' (the
-    colour loss itself; needs ``monkeypatch``). The NaN enters as an opaque
-    factor, so the kernels do not change when it does.
-    """
-    from reneus_mi.train import losses
-    trainer = new_trainer(scene_xml, out, iterations=6, checkpoint_every=1)
-    poison = {'factor': dr.opaque(mi.Float, 1.0)}
-    field = trainer.field
-    if where == 'loss':
-        color_l1 = losses.color_l1
-        monkeypatch.setattr(losses, 'color_l1', lambda *a: color_l1(*a) * poison['factor'])
-    elif where == 'radiance':
-        radiance = field.radiance
-        field.radiance = lambda *a: radiance(*a) * poison['factor']
-    else:
-        geometry = field.geometry
-        field.geometry = lambda x: (lambda g: (g[0] * poison['factor'], g[1]))(geometry(x))
-        field.sdf = lambda x: field.geometry(x)[0]
-    step = trainer.step
-
-    def poisoned_step():
-        if trainer.iteration == at:
-            poison['factor'] = dr.opaque(mi.Float, float('nan'))
-        return step()
-
-    trainer.step = poisoned_step
-    return trainer
-
-
 @pytest.mark.parametrize('where, message', [
     ('loss', r'^step 3: the loss is nan; stopped before updating'),
     # NaN radiance: the tonemap's clamp (dr.maximum(L, 1e-6), which maps NaN
@@ -303,13 +167,13 @@ def test_nan_geometry_stops_with_training_error(scene_xml, tmp_path):
     transmittance NaN, so no ray survives the first interface."""
     code = (
         'import sys; sys.path.insert(0, sys.argv[1]); import conftest\n'
-        'from test_checkpoint import poison_run\n'
+        'from tiny import poison_run\n'
         'from reneus_mi.train.trainer import TrainingError\n'
         'try:\n'
         '    poison_run(sys.argv[2], sys.argv[3], "geometry").run(progress=False)\n'
         'except TrainingError as e:\n'
         '    print(e); sys.exit(3)\n')
-    proc = subprocess.run([sys.executable, '-c', code, os.path.dirname(__file__), scene_xml,
+    proc = subprocess.run([sys.executable, '-c', code, os.path.dirname(os.path.dirname(__file__)), scene_xml,
                            str(tmp_path)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 3, f'exit {proc.returncode}: {proc.stderr[-2000:]}'
     assert proc.stdout.startswith('step 3: ')

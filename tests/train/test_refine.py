@@ -1,11 +1,10 @@
 """Refining the container's IOR and pose and the light with the field (beyond the paper).
 
-Unit checks of the parts (the light's SH basis, the pose's transforms, the
-silhouette term), the derivatives of renders with respect to each refined
-quantity against central differences, smooth containers against Mitsuba's
-path tracer, and recovery runs on photographs from the path tracer (IOR 1.45,
-ambient 0.8): started wrong, the run must end near the truth and mesh the
-object better than the same run with the wrong value held fixed.
+Recovery runs on photographs from the path tracer (IOR 1.45, ambient 0.8):
+started wrong, the run must end near the truth and mesh the object better than
+the same run with the wrong value held fixed; the silhouette term; miscalibrated
+data. The parts the integrator owns (light, pose, render derivatives) are
+checked in ``render/test_surroundings.py``.
 """
 import json
 import os
@@ -16,165 +15,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from reference import AMBIENT, path_reference, path_scene, pixel_rays, reneus_pixels, reneus_scene
 from reneus_mi.train import runs
 from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
 from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.mesh import load_mesh
-from reneus_mi.data.objects import container_mesh
 from reneus_mi.train.runs import spec_of_scene
 from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.train.silhouette import SilhouetteLoss
-from reneus_mi.render.surroundings import ContainerPose, Light, fibonacci_directions, sh_basis
-from reneus_mi.data.synth import make_dataset, miscalibrated, write_container
-
-
-def _constant(value=AMBIENT):
-    return mi.load_dict({'type': 'constant', 'radiance': {'type': 'rgb', 'value': value}})
-
-
-def _directions(n, seed=0):
-    d = np.random.default_rng(seed).normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return mi.Vector3f(*(mi.Float(d[:, i].astype(np.float32)) for i in range(3))), d
-
-
-@pytest.mark.parametrize('kind', ['ambient', 'sh'])
-def test_light_starts_as_the_scenes_constant_emitter(kind):
-    d, _ = _directions(100)
-    L = np.array(Light(kind, _constant()).eval(d))
-    assert np.abs(L - AMBIENT).max() < 1e-4
-
-
-def test_sh_light_reproduces_a_room_of_order_two():
-    # A room brighter above and on one side: within SH order 2, so exactly representable.
-    def room(d):
-        return 0.6 + 0.3 * d[:, 2] + 0.1 * d[:, 0] * d[:, 1] + 0.05 * d[:, 0]
-    light = Light('sh', _constant())
-    q = fibonacci_directions(8192)
-    Y = np.array([np.broadcast_to(np.array(y), (len(q),)) for y in sh_basis(
-        mi.Vector3f(*(mi.Float(q[:, i].astype(np.float32)) for i in range(3))))])
-    c = (4 * np.pi / len(q)) * Y @ room(q)
-    light.coefficients = mi.Float(np.repeat(c[:, None], 3, axis=1).ravel().astype(np.float32))
-    d, dn = _directions(200, seed=1)
-    assert np.abs(np.array(light.eval(d))[0] - room(dn)).max() < 2e-3
-
-
-def _pose(t=(0.02, -0.01, 0.03), r=(0.1, -0.2, 0.05), s=(0.01, -0.02, 0.03)):
-    pose = ContainerPose((0.1, 0.2, -0.1))
-    pose.translation, pose.rotation, pose.log_scale = mi.Float(t), mi.Float(r), mi.Float(s)
-    return pose
-
-
-def test_pose_maps_rays_and_normals_consistently():
-    pose = _pose()
-    _, p = _directions(50, seed=2)
-    x = mi.Point3f(*(mi.Float(p[:, i].astype(np.float32)) for i in range(3)))
-    d, _ = _directions(50, seed=3)
-    # A world ray taken into the container's frame meets the same points at the same t.
-    o_c, d_c = pose.to_container(x, d)
-    for t in (0.0, 0.7):
-        back = np.array(pose.to_world(o_c + t * d_c))
-        assert np.abs(back - np.array(x + t * d)).max() < 1e-5
-    # Normals stay perpendicular to transformed tangents.
-    n, _ = _directions(50, seed=4)
-    tangent = dr.normalize(dr.cross(n, d))
-    moved = np.array(pose.to_world(x + 1e-2 * tangent)) - np.array(pose.to_world(x))
-    assert np.abs(np.sum(moved * np.array(pose.normal_to_world(n)), axis=0)).max() < 1e-5
-    M = pose.matrix()
-    assert np.abs((M[:3, :3] @ p.T).T + M[:3, 3] - np.array(pose.to_world(x)).T).max() < 1e-5
-
-
-def _refinable_scene(res=8, **settings):
-    settings = {'container_pose': True, 'light': 'ambient', 'field_inv_s': 60.0, **settings}
-    scene = reneus_scene(res, **settings)
-    scene.integrator().bind(scene)
-    return scene
-
-
-def test_identity_pose_renders_the_scene_as_loaded():
-    plain = reneus_pixels(reneus_scene(24))
-    posed = reneus_pixels(_refinable_scene(24, field_inv_s=4000.0))
-    assert np.abs(plain - posed).mean() < 1e-6 and np.abs(plain - posed).max() < 2e-3
-
-
-@pytest.mark.parametrize('key, i', [('container.eta', 0), ('container.translation', 0),
-                                    ('container.translation', 1), ('container.rotation', 2),
-                                    ('container.log_scale', 0), ('light.radiance', 1)])
-def test_render_gradients_of_surroundings_match_finite_differences(key, i):
-    # Interior derivatives, pixel by pixel: the rays keep their pixels, the glass moves under
-    # them; the samples of each inside segment follow its ends. Coarse samples only (fine ones
-    # are drawn anew where the surface moves, which central differences see and AD does not).
-    scene = _refinable_scene(16, max_depth=2, n_fine=0)
-    integrator = scene.integrator()
-    ray = pixel_rays(scene)
-    array = integrator.params()[key]
-    value = np.array(array)
-    e = np.zeros_like(value)
-    e[i] = 1.0
-    dr.enable_grad(array)
-    dr.set_grad(array, mi.Float(e))
-    L = integrator.render_rays(scene, ray).L
-    dr.forward_to(L)
-    ad = np.array(dr.grad(L))
-    dr.disable_grad(array)
-    h = 2e-3
-    f = []
-    for sign in (1, -1):
-        mi.set_property(array, mi.Float(value + sign * h * e))
-        f.append(np.array(integrator.render_rays(scene, ray).L))
-    mi.set_property(array, mi.Float(value))
-    fd = (f[0] - f[1]) / (2 * h)
-    # A few rays cross a box edge within ±h: there the difference quotient is not a derivative.
-    agree = np.abs(ad - fd) < 0.01 + 0.05 * np.abs(fd)
-    assert agree.mean() > 0.99, (key, i, agree.mean())
-    assert np.abs(ad - fd)[agree].sum() < 0.02 * np.abs(fd)[agree].sum(), key
-    assert np.abs(fd).max() > 0.3, (key, np.abs(fd).max())
-
-
-# ------------------------------------------------------------ smooth glass
-#: Mean |reneus - path| (linear) on the rounded block: measured 0.0008 with its shading normals,
-#: 0.0045 with the normals of its facets.
-SMOOTH_TOL = 0.003
-
-
-@pytest.fixture(scope='module')
-def rounded_block(tmp_path_factory):
-    mesh = container_mesh('rounded', (0.55, 0.45, 0.5))
-    normals = mesh.vertex_normals.copy()
-    rot = trimesh.transformations.rotation_matrix(np.radians(25), [0, 1, 0])
-    mesh.apply_transform(rot)
-    mesh.vertex_normals = normals @ rot[:3, :3].T
-    path = str(tmp_path_factory.mktemp('rounded') / 'rounded.ply')
-    write_container(mesh, path, normals=True)
-    return path
-
-
-@pytest.mark.parametrize('pose', [False, True], ids=['as_loaded', 'posed'])
-def test_smooth_container_matches_path_tracer(rounded_block, pose):
-    # Shading normals bend the light on a tessellated rounded block as in Mitsuba's
-    # dielectric; flat facets (the geometric normals) would not (measured below).
-    mean, _ = path_reference(path_scene(24, max_depth=3, mesh=rounded_block), 4096)
-    reneus = reneus_pixels(reneus_scene(24, mesh=rounded_block, max_depth=2, terminal='black',
-                                       container_pose=pose))
-    error = np.abs(reneus - mean).mean()
-    print(f"mean |reneus - path| {error:.5f}")
-    assert error < SMOOTH_TOL
-
-
-def test_smooth_container_comparison_has_teeth(rounded_block, monkeypatch):
-    from reneus_mi.plugins import reneus as plugin
-    original = plugin._Hit
-
-    def flat(t, p, n, n_s, valid):
-        return original(t, p, n, n, valid)
-    mean, _ = path_reference(path_scene(24, max_depth=3, mesh=rounded_block), 1024)
-    monkeypatch.setattr(plugin, '_Hit', flat)
-    reneus = reneus_pixels(reneus_scene(24, mesh=rounded_block, max_depth=2, terminal='black'))
-    # The tolerance of test_smooth_container_matches_path_tracer: facets fail it.
-    assert np.abs(reneus - mean).mean() > SMOOTH_TOL
+from reneus_mi.render.surroundings import ContainerPose
+from reneus_mi.data.synth import make_dataset, miscalibrated
 
 
 # ------------------------------------------------------------ recovery runs
