@@ -44,61 +44,34 @@ class RunState:
         return f'{self.name} ({self.reason})' if self.reason else self.name
 
 
+class _File:
+    """A file of a run folder: its name on the class (``RunFolder.log``), its path on a folder."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def __get__(self, folder, owner=None) -> str:
+        return self.name if folder is None else os.path.join(folder.path, self.name)
+
+
 @dataclass(frozen=True)
 class RunFolder:
     """The folder of one run and the names of what it holds."""
 
     path: str
 
-    CONFIG = 'config.json'
-    LOG = 'log.jsonl'
-    CHECKPOINT = 'checkpoint.npz'
-    IMAGES = 'images'
-    MESHES = 'meshes'
-    MESH = 'mesh.ply'
-    CONTAINER = 'container_refined.ply'
-    RESULT = 'result.json'
-    LOCK = '.lock'
-    #: Everything a run writes.
-    FILES = (CONFIG, LOG, CHECKPOINT, IMAGES, MESHES, MESH, CONTAINER, RESULT, LOCK)
+    config = _File('config.json')
+    log = _File('log.jsonl')
+    checkpoint = _File('checkpoint.npz')
+    images = _File('images')
+    meshes = _File('meshes')
+    mesh = _File('mesh.ply')
+    container = _File('container_refined.ply')
+    result = _File('result.json')
+    lock_file = _File('.lock')
 
     def __post_init__(self):
         object.__setattr__(self, 'path', os.fspath(self.path))
-
-    def file(self, name: str) -> str:
-        return os.path.join(self.path, name)
-
-    @property
-    def config(self) -> str:
-        return self.file(self.CONFIG)
-
-    @property
-    def log(self) -> str:
-        return self.file(self.LOG)
-
-    @property
-    def checkpoint(self) -> str:
-        return self.file(self.CHECKPOINT)
-
-    @property
-    def images(self) -> str:
-        return self.file(self.IMAGES)
-
-    @property
-    def meshes(self) -> str:
-        return self.file(self.MESHES)
-
-    @property
-    def mesh(self) -> str:
-        return self.file(self.MESH)
-
-    @property
-    def container(self) -> str:
-        return self.file(self.CONTAINER)
-
-    @property
-    def result(self) -> str:
-        return self.file(self.RESULT)
 
     # ------------------------------------------------------------- checks
     def check(self, *, inputs=(), resume: bool = False) -> str:
@@ -112,12 +85,12 @@ class RunFolder:
         """
         present = os.listdir(self.path) if os.path.isdir(self.path) else []
         allow = present if resume else [n for n in present
-                                        if (n in self.FILES and n != self.CHECKPOINT) or is_temporary(n)]
+                                        if (n in FILES and n != RunFolder.checkpoint) or is_temporary(n)]
         return guards.check_output_dir(self.path, inputs=inputs, allow=allow, what='output folder')
 
     def lock(self) -> 'RunLock':
         """The folder's lock (a context manager): one process drives a run."""
-        return RunLock(self.file(self.LOCK))
+        return RunLock(self.lock_file)
 
     def remove_stray_temporaries(self) -> list[str]:
         """Delete the temporaries an atomic write left behind when it was killed."""
@@ -125,7 +98,7 @@ class RunFolder:
         if os.path.isdir(self.path):
             for name in os.listdir(self.path):
                 if is_temporary(name):
-                    os.unlink(self.file(name))
+                    os.unlink(os.path.join(self.path, name))
                     removed.append(name)
         return removed
 
@@ -152,7 +125,7 @@ class RunFolder:
             with open(self.config) as f:
                 return json.load(f)
         except FileNotFoundError:
-            raise ReneusError(f'{self.path}: nothing to resume (no {self.CONFIG})') from None
+            raise ReneusError(f'{self.path}: nothing to resume (no {RunFolder.config})') from None
         except (OSError, ValueError) as e:
             raise ReneusError(f'{self.config}: unreadable ({e})') from None
 
@@ -213,6 +186,10 @@ class RunFolder:
                           f'the checkpoint (first: {missing[:3]}); the run goes on, its log has gaps')
         atomic_write_text(self.log, ''.join(json.dumps(e) + '\n' for e in entries))
         return entries
+
+
+#: Every name a run writes into its folder.
+FILES = tuple(f.name for f in vars(RunFolder).values() if isinstance(f, _File))
 
 
 def recent_psnr(entries: list[dict], n: int = 100) -> float | None:
