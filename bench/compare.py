@@ -4,7 +4,7 @@
                             [--iterations N] [--out runs/compare_small] [--doc docs]
 
 For each object it renders (or reuses) the synthetic dataset with both subsets
-(:func:`reneus_mi.synth.make_dataset`, Mitsuba's path tracer), then fits
+(:func:`reneus_mi.data.synth.make_dataset`, Mitsuba's path tracer), then fits
 
 ==================  ========  ==========  ====================
 method              subset    mode        λ1 (``trans_weight``)

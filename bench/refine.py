@@ -4,10 +4,10 @@
                            [--iterations 600] [--views 24] [--res 64] [--out runs/refine] [--doc docs]
 
 For each object a dataset is rendered with Mitsuba's path tracer (glass box,
-IOR 1.45, ambient 0.8, :func:`reneus_mi.synth.make_dataset`). Each quantity is
+IOR 1.45, ambient 0.8, :func:`reneus_mi.data.synth.make_dataset`). Each quantity is
 then set wrong as a calibration would leave it: the IOR taken as 1.40; the
 container shifted by (2, -1, 0.5) % of its size and scaled by 1.02
-(:func:`reneus_mi.synth.miscalibrated`); the ambient taken as 0.7. The ``fast``
+(:func:`reneus_mi.data.synth.miscalibrated`); the ambient taken as 0.7. The ``fast``
 preset reconstructs the object three times: with the true values, with the
 wrong value held fixed (the paper's method) and refining it
 (``--refine-ior``, ``--refine-pose``, ``--refine-light ambient``). Reported:

@@ -248,7 +248,7 @@ def test_untrained_field_renders_a_sphere():
     # 1 - T: the untrained field must cover exactly the pixels whose ray meets
     # the sphere of radius init_radius. The SIREN field starts as that sphere
     # at any width; SAL's softplus initialisation is a sphere only on average
-    # over random weights (tests/test_fields.py checks it that way).
+    # over random weights (fields/test_fields.py checks it that way).
     from reference import pixel_rays
     scene = reneus_scene(32, **{**TINY_NEUS, 'mode': 'neus', 'field_init_radius': 0.35,
                                 'field_activation': 'sine', 'field_init_variance': 0.5})
