@@ -11,11 +11,11 @@ import mitsuba as mi
 from reneus_mi.config import ModelConfig, RenderConfig, field_config_class, typed_value
 from reneus_mi.errors import ReneusError
 from reneus_mi.fields import FIELD_CONFIGS, Field, load_field
+from reneus_mi.presets import preset
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.render.optics import interface
-from reneus_mi.train.pixel_sampler import opaque_seed
-from reneus_mi.presets import preset
 from reneus_mi.render.ray_samplers import SamplerConfig
+from reneus_mi.render.seeds import opaque_seed
 from reneus_mi.render.surroundings import Surroundings
 from reneus_mi.render.volume_rendering import volume_render
 

@@ -2,9 +2,9 @@
 
 The photographs, the container masks' pixel indices and the cameras are
 uploaded once as Dr.Jit arrays. A batch is a set of masked pixels drawn with
-Dr.Jit's PCG32 from a state that depends only on ``(seed, step)``: a run
-resumed at step k draws what the unbroken run drew, with no generator state to
-save, and no NumPy array is touched during training.
+Dr.Jit's PCG32 from a state that depends only on ``(seed, step)``
+(:mod:`reneus_mi.render.seeds`): a run resumed at step k draws what the unbroken
+run drew, and no NumPy array is touched during training.
 """
 from __future__ import annotations
 
@@ -14,20 +14,7 @@ import numpy as np
 
 from reneus_mi.data import Dataset
 from reneus_mi.errors import ReneusError
-
-#: Streams of the step's random numbers: the pixels of the batch, the samples' jitter.
-PIXELS, JITTER = 0, 1
-
-
-def step_seed(seed: int, step: int, stream: int) -> int:
-    """A 64-bit PCG32 initial state for one use of one step of a run."""
-    return ((seed & 0xFFFFFF) << 40) ^ ((step & 0xFFFFFFFF) << 4) ^ stream
-
-
-def opaque_seed(seed: int) -> mi.UInt64:
-    """A seed that kernels read from memory: a literal would make every step compile anew."""
-    return dr.opaque(mi.UInt64, seed)
-
+from reneus_mi.render.seeds import PIXELS, opaque_seed, step_seed
 
 class PixelSampler:
     """Masked pixels of all views, their colours and their camera rays, on the device."""

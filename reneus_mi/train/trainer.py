@@ -39,7 +39,8 @@ from reneus_mi.geometry.mesh import write_mesh
 from reneus_mi.geometry.surface import components, field_mesh
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.render.loading import reneus_integrator
-from reneus_mi.train.pixel_sampler import JITTER, PixelSampler, step_seed
+from reneus_mi.render.seeds import JITTER, step_seed
+from reneus_mi.train.pixel_sampler import PixelSampler
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.data.images import write_image
 from reneus_mi.variant import is_cuda
