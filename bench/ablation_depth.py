@@ -66,10 +66,9 @@ def main(argv=None) -> int:
         p.error('--depths: D_re >= 1')
     cfg = compare.resolve(args.config, args.iterations)
     out = args.out or os.path.join('runs', f'compare_{args.config}')
-    try:
+    from reneus_mi.errors import exit_on_error
+    with exit_on_error():
         ablation(args.object, args.depths, cfg, out, args.doc, args.progress)
-    except ValueError as e:
-        raise SystemExit(f'error: {e}') from None
     print(f"wrote {os.path.join(args.doc, 'ablation_depth.md')}")
     return 0
 

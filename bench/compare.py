@@ -132,8 +132,7 @@ def run_method(obj: str, key: str, out: str, cfg: dict, *, model_extra: dict | N
     from reneus_mi.data import load_dataset
     from reneus_mi.geometry.container import load_container
     from reneus_mi.geometry.chamfer import chamfer
-    from reneus_mi.geometry.mesh import load_mesh
-    from reneus_mi.geometry.mesh import write_mesh
+    from reneus_mi.geometry.mesh import load_mesh, write_mesh
     from reneus_mi.io import atomic_write_text
     from reneus_mi.geometry.surface import postprocess
     from reneus_mi.data.scene_xml import write_scene
@@ -354,10 +353,9 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     cfg = resolve(args.config, args.iterations)
     out = args.out or os.path.join('runs', f'compare_{args.config}')
-    try:
+    from reneus_mi.errors import exit_on_error
+    with exit_on_error():
         compare(args.objects, cfg, out, args.doc, progress=args.progress)
-    except ValueError as e:
-        raise SystemExit(f'error: {e}') from None
     print(f"wrote {os.path.join(args.doc, 'comparison.md')} and comparison.png")
     return 0
 
