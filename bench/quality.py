@@ -12,12 +12,11 @@ subprocesses::
     python -m reneus_mi.scene DATA/SCENE/VARIANT -o RUNS/SCENE/VARIANT/scene_PRESET.xml --preset PRESET
         [--set mode=neus: for a dataset without a container, which optimize refuses otherwise]
     python -m reneus_mi.optimize scene_PRESET.xml -o RUN --max-minutes M --quiet
-    python -m reneus_mi.evaluate RUN/mesh.ply DATA/SCENE/gt.ply --json RUN/evaluate.json
+    python -m reneus_mi.evaluate RUN/mesh.ply DATA/SCENE/gt.ply --json RUN/evaluate.json [--postprocess P]
 
-and records Chamfer-L1 x100 (evaluate's default clean-up: the largest component) and the
-number of connected components of the run's ``mesh.ply`` (evaluate's ``components`` when it
-reports it, else counted here with trimesh, faces sharing an edge). Every budget is a
-separate run. It writes ``DOC/quality.md`` (one table per scene, the command, the date, the
+and records Chamfer-L1 x100 (after evaluate's clean-up: its default, or ``--postprocess``)
+and the connected components of the run's ``mesh.ply`` as the run wrote it
+(:func:`reneus_mi.mesh.components`). Every budget is a separate run. It writes ``DOC/quality.md`` (one table per scene, the command, the date, the
 machine's load) and ``DOC/quality/SCENE_VARIANT_PRESET_Mmin.png``: the mesh beside the
 ground truth, rendered by Mitsuba from the same camera. A run that fails or is skipped is
 a row with its reason. Finished runs (an ``evaluate.json``) are read back, so a killed
@@ -93,14 +92,17 @@ def _run(cmd: list[str], log, timeout: float) -> str | None:
 
 
 def count_components(mesh_path: str) -> int:
-    """Connected components of a mesh (faces that share an edge), 0 for an empty mesh."""
-    import trimesh
-    mesh = trimesh.load(mesh_path, force='mesh')
-    return len(mesh.split(only_watertight=False)) if len(mesh.faces) else 0
+    """Connected pieces of the run's mesh as it wrote it (0 when it holds no surface)."""
+    from reneus_mi.errors import ReneusError
+    from reneus_mi.mesh import components, load_mesh
+    try:
+        return components(load_mesh(mesh_path))
+    except ReneusError:
+        return 0
 
 
 def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str, minutes: float,
-            fresh: bool) -> dict:
+            fresh: bool, postprocess: str | None) -> dict:
     """One row: scene file, run, evaluation (or the reason there is none)."""
     row = {'scene': scene, 'variant': variant, 'preset': preset, 'minutes': minutes}
     folder = os.path.join(runs, scene, variant)
@@ -125,7 +127,8 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
     with open(os.path.join(folder, f'{_tag(preset, minutes)}.log'), 'w') as log:
         steps = [[py, '-m', 'reneus_mi.scene', data, '-o', xml, '--preset', preset, *neus, '--overwrite'],
                  [py, '-m', 'reneus_mi.optimize', xml, '-o', run, '--max-minutes', f'{minutes:g}', '--quiet'],
-                 [py, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation]]
+                 [py, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation,
+                  *(['--postprocess', postprocess] if postprocess else [])]]
         timeouts = [GRACE_S, 60 * minutes + GRACE_S, GRACE_S]
         start = time.perf_counter()
         for cmd, timeout in zip(steps, timeouts):
@@ -151,11 +154,11 @@ def _read(run: str, evaluation: str | None) -> dict:
     if evaluation:
         with open(evaluation) as f:
             e = json.load(f)
-        out.update(chamfer=e['chamfer'], fscore=e.get('fscore'), status='ok')
-        if 'components' in e:
-            out.update(components=e['components'], components_from='evaluate')
-    if 'components' not in out and os.path.isfile(mesh):
-        out.update(components=count_components(mesh), components_from='trimesh')
+        out.update(chamfer=e['chamfer'], fscore=e.get('fscore'), postprocess=e.get('postprocess'),
+                   status='ok')
+    if os.path.isfile(mesh):
+        # Not evaluate's 'components': it counts after its clean-up (one, for 'largest').
+        out['components'] = count_components(mesh)
     return out
 
 
@@ -171,10 +174,11 @@ def picture(mesh_path: str, gt_path: str, out: str) -> None:
     """The mesh (left) beside the ground truth (right), grey, from one oblique camera that
     frames the ground truth."""
     import mitsuba as mi
-    import trimesh
+    from reneus_mi.errors import ReneusError
+    from reneus_mi.mesh import load_mesh
     if mi.variant() is None:
         mi.set_variant('scalar_rgb')
-    gt = trimesh.load(gt_path, force='mesh')
+    gt = load_mesh(gt_path, 'ground-truth mesh')
     centre = gt.bounds.mean(axis=0)
     radius = float(np.linalg.norm(gt.vertices - centre, axis=1).max())
     direction = np.array([1.0, -1.4, 0.9]) / np.linalg.norm([1.0, -1.4, 0.9])
@@ -183,8 +187,8 @@ def picture(mesh_path: str, gt_path: str, out: str) -> None:
     halves = []
     for path in (mesh_path, gt_path):
         try:
-            mesh = trimesh.load(path, force='mesh')
-        except (ValueError, OSError):  # an empty mesh.ply: a run that found no surface
+            mesh = load_mesh(path)
+        except ReneusError:  # an empty mesh.ply: a run that found no surface
             mesh = None
         scene = {'type': 'scene', 'integrator': {'type': 'path', 'max_depth': 3},
                  'sensor': {'type': 'perspective', 'fov': fov,
@@ -195,7 +199,7 @@ def picture(mesh_path: str, gt_path: str, out: str) -> None:
                  'sky': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': 0.35}},
                  'sun': {'type': 'directional', 'direction': [-0.4, 0.7, -1.0],
                          'irradiance': {'type': 'rgb', 'value': 2.2}}}
-        if mesh is not None and len(mesh.faces):
+        if mesh is not None:
             m = mi.Mesh('mesh', len(mesh.vertices), len(mesh.faces))
             params = mi.traverse(m)
             params['vertex_positions'] = mesh.vertices.astype(np.float32).ravel()
@@ -237,21 +241,21 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, ended: di
               'the block: optimize refuses a scene without a container otherwise), '
               '`python -m reneus_mi.optimize scene.xml -o RUN --max-minutes M --quiet`, '
               '`python -m reneus_mi.evaluate RUN/mesh.ply GT --json ...`. Chamfer-L1 x100 is '
-              "evaluate's (largest component); components are those of the run's `mesh.ply`. "
+              "evaluate's, after its clean-up (`--postprocess "
+              f"{', '.join(sorted({r['postprocess'] for r in rows if r.get('postprocess')})) or '-'}`); "
+              "components are those of the run's `mesh.ply` as the run wrote it. "
               'Pictures: the mesh (left) beside the ground truth (right).', '']
     for scene in dict.fromkeys(r['scene'] for r in rows):
         lines += [f'## {scene}', '', '| variant | preset | budget | Chamfer x100 | components | steps | '
                   'PSNR | status | picture |', '| --- | --- | --- | --- | --- | --- | --- | --- | --- |']
         for r in (r for r in rows if r['scene'] == scene):
             pic = f"[png]({r['picture']})" if r.get('picture') else ''
-            comp = _fmt(r.get('components'), 'd') + ('*' if r.get('components_from') == 'trimesh' else '')
+            comp = _fmt(r.get('components'), 'd')
             status = r['status'] + (' (earlier run)' if r.get('reused') else '')
             lines.append(f"| {r['variant']} | {r['preset']} | {r['minutes']:g} min | "
                          f"{_fmt(r.get('chamfer'), '.3f')} | {comp} | {_fmt(r.get('steps'), 'd')} | "
                          f"{_fmt(r.get('psnr'), '.2f')} | {status} | {pic} |")
         lines.append('')
-    if any(r.get('components_from') == 'trimesh' for r in rows):
-        lines += ['\\* counted by this script with trimesh (evaluate\'s --json has no `components`).', '']
     verdicts = criterion(rows)
     if verdicts:
         c = CRITERION
@@ -300,6 +304,7 @@ def main(argv=None) -> None:
                         help='folder of the runs (default: runs/quality)')
     parser.add_argument('--doc', default=os.path.join(ROOT, 'docs'),
                         help='folder of quality.md and quality/ (default: docs)')
+    parser.add_argument('--postprocess', help="evaluate's --postprocess (default: evaluate's own)")
     parser.add_argument('--fresh', action='store_true', help='run again what an earlier run finished')
     args = parser.parse_args(argv)
     configs = parse_configs(args.configs)
@@ -321,7 +326,7 @@ def main(argv=None) -> None:
         for variant in args.variants:
             for preset, minutes in configs:
                 row = run_one(os.path.join(args.data, scene, variant), gt, args.runs, scene, variant,
-                              preset, minutes, args.fresh)
+                              preset, minutes, args.fresh, args.postprocess)
                 mesh = os.path.join(row['run'], 'mesh.ply')
                 if os.path.isfile(mesh):
                     name = f"{scene}_{variant}_{_tag(preset, minutes)}.png"
