@@ -14,8 +14,8 @@ subprocesses::
     python -m reneus_mi.optimize scene_PRESET.xml -o RUN --max-minutes M --quiet
     python -m reneus_mi.evaluate RUN/mesh.ply DATA/SCENE/gt.ply --json RUN/evaluate.json [--postprocess P]
 
-and records Chamfer-L1 x100 (after evaluate's clean-up: its default, or ``--postprocess``)
-and the connected components of the run's ``mesh.ply`` as the run wrote it
+and records Chamfer-L1 x100 of the run's mesh as the run cleaned it (``--postprocess none``;
+another rule of evaluate's with ``--postprocess``) and the connected components of the run's ``mesh.ply`` as the run wrote it
 (:func:`reneus_mi.mesh.components`). Every budget is a separate run. It writes ``DOC/quality.md`` (one table per scene, the command, the date, the
 machine's load) and ``DOC/quality/SCENE_VARIANT_PRESET_Mmin.png``: the mesh beside the
 ground truth, rendered by Mitsuba from the same camera. A run that fails or is skipped is
@@ -304,7 +304,9 @@ def main(argv=None) -> None:
                         help='folder of the runs (default: runs/quality)')
     parser.add_argument('--doc', default=os.path.join(ROOT, 'docs'),
                         help='folder of quality.md and quality/ (default: docs)')
-    parser.add_argument('--postprocess', help="evaluate's --postprocess (default: evaluate's own)")
+    parser.add_argument('--postprocess', default='none',
+                        help="evaluate's --postprocess (default: %(default)s: the run's mesh.ply as the run "
+                             "cleaned it)")
     parser.add_argument('--fresh', action='store_true', help='run again what an earlier run finished')
     args = parser.parse_args(argv)
     configs = parse_configs(args.configs)
