@@ -26,13 +26,12 @@ import numpy as np
 
 from reneus_mi import guards
 from reneus_mi.capture import board as board_mod
-from reneus_mi.capture import dataset, overlay, photos, settings as settings_mod
+from reneus_mi.capture import dataset, photos, settings as settings_mod
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.calibrate import Calibration, calibrate
-from reneus_mi.capture.container import local_mesh
 from reneus_mi.capture.exposure import measure
-from reneus_mi.capture.register import Registration, register
-from reneus_mi.capture.undistort import opencv_K, pinhole_K, scaled_size, undistort
+from reneus_mi.capture.register import Outline, register
+from reneus_mi.capture.undistort import pinhole_K, scaled_size, undistort
 from reneus_mi.errors import ReneusError, exit_on_error
 
 #: Corners this many pixels of the photograph outside the container's projection still count
@@ -115,6 +114,18 @@ def seen_through(cal: Calibration, shape: str, size, pose):
     return exclude
 
 
+def _warn_uncovered(names, valid, K, c2w, s, pose) -> None:
+    """Warn where the container's projection (the training mask) reaches pixels that the
+    undistorted photograph does not cover."""
+    outline = Outline(s.container, s.size_mm, K, c2w)
+    for v, name in enumerate(names):
+        mask = np.zeros(valid[v].shape, np.uint8)
+        cv2.fillConvexPoly(mask, np.round(outline.polygon(pose, v) - 0.5).astype(np.int32), 1)
+        if (mask.astype(bool) & ~valid[v]).any():
+            warnings.warn(f'{name}: the container reaches beyond the photograph once undistorted; '
+                          'those pixels are black in the dataset')
+
+
 def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, quiet: bool = False) -> dict:
     """The whole capture (see the module docstring); returns what the report holds."""
     start = time.perf_counter()
@@ -142,14 +153,14 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, quiet: bo
     exclude = seen_through(cal, s.container, s.size_mm, reg.pose)
     cal = calibrate(board, {n: detections[n] for n in names}, size, exclude=exclude)
     K_out = pinhole_K(cal.K, scale)
-    if [v.name for v in cal.views] != names:
-        names = [v.name for v in cal.views]
+    names = [v.name for v in cal.views]
     images, valid = load_views(by_name, cal, (width, height), K_out)
     c2w = np.stack([v.c2w for v in cal.views])
     reg = register(images, valid, K_out, c2w, board, s.container, s.size_mm, pose=s.container_pose,
                    start=reg.pose)
     light = measure(images, valid, K_out, c2w, board, reg.measured, names)
-    report = dataset.write(out, photos_dir, s, board, cal, K_out, light.normalise(images), valid, reg, light)
+    _warn_uncovered(names, valid, K_out, c2w, s, reg.pose)
+    report = dataset.write(out, s, board, cal, K_out, light.normalise(images), reg, light)
     dataset.write_overlays(out, images, K_out, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
     report['seconds'] = time.perf_counter() - start

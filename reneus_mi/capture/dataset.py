@@ -45,13 +45,35 @@ def _stem(name: str) -> str:
     return os.path.splitext(name)[0]
 
 
-def write(out: str, photos_dir: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.ndarray,
-          images: np.ndarray, valid: np.ndarray, reg, light) -> dict:
+def write_views(out: str, names: list[str], images: np.ndarray, K: np.ndarray, c2w: np.ndarray,
+                meta: dict, frames: list[dict] | None = None) -> None:
+    """``images/NAME.png`` (RGB: the masks are the container's projection, not measured) and
+    ``transforms.json`` (written last) with the pinhole cameras, ``meta``'s keys and each
+    frame's extra keys. ``K`` is one (3,3) for all views or (N,3,3)."""
+    os.makedirs(os.path.join(out, 'images'), exist_ok=True)
+    for name, image in zip(names, images):
+        write_png(os.path.join(out, 'images', _stem(name) + '.png'), image)
+    h, w = images.shape[1:3]
+
+    def camera(k):
+        return {'fl_x': k[0, 0], 'fl_y': k[1, 1], 'cx': k[0, 2], 'cy': k[1, 2]}
+    shared = K.ndim == 2
+    top = {'camera_model': 'PINHOLE', 'w': w, 'h': h, **(camera(K) if shared else {})}
+    entries = []
+    for i, name in enumerate(names):
+        entry = {'file_path': f'images/{_stem(name)}.png', 'transform_matrix': (c2w[i] @ OPENGL_FROM_OPENCV).tolist()}
+        if not shared:
+            entry.update(camera(K[i]))
+        entry.update(frames[i] if frames else {})
+        entries.append(entry)
+    atomic_write_text(os.path.join(out, 'transforms.json'),
+                      json.dumps({**top, **meta, 'frames': entries}, indent=2, default=float))
+
+
+def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.ndarray,
+          images: np.ndarray, reg, light) -> dict:
     """Write the dataset into ``out`` (checked by the caller); return the report."""
     n, h, w = images.shape[:3]
-    os.makedirs(os.path.join(out, 'images'), exist_ok=True)
-    for view, image in zip(cal.views, images):
-        write_png(os.path.join(out, 'images', _stem(view.name) + '.png'), image)
     write_container(board_mesh(s.container, s.size_mm, reg.pose), os.path.join(out, 'container.ply'),
                     smooth=s.container != 'box')
     write_png(os.path.join(out, 'board.png'), board.pattern(BOARD_PX_PER_MM).astype(np.float32) / 255.0)
@@ -72,10 +94,8 @@ def write(out: str, photos_dir: str, s: CaptureSettings, board: Board, cal: Cali
                   'board_white': light.white.tolist(), 'board_black': light.black.tolist()},
     }
     atomic_write_text(os.path.join(out, 'report.json'), json.dumps(report, indent=2))
-    outside = [v.name for v, ok, m in zip(cal.views, valid, reg.measured) if not ok.all() and (m & ~ok).any()]
     meta = {
-        'camera_model': 'PINHOLE', 'fl_x': K[0, 0], 'fl_y': K[1, 1], 'cx': K[0, 2], 'cy': K[1, 2],
-        'w': w, 'h': h, 'IOR': s.ior, 'mesh_outside': 'container.ply',
+        'IOR': s.ior, 'mesh_outside': 'container.ply',
         'ambient': light.ambient.tolist(),
         'capture': {
             'frame': FRAME, 'units': 'mm',
@@ -86,13 +106,9 @@ def write(out: str, photos_dir: str, s: CaptureSettings, board: Board, cal: Cali
             'container': report['container'],
             'exposure': 'each frame\'s exposure_gain (relative to the darkest photograph) is divided out of its image',
         },
-        'frames': [{'file_path': f'images/{_stem(v.name)}.png', 'photo': v.name,
-                    'transform_matrix': (v.c2w @ OPENGL_FROM_OPENCV).tolist(), 'exposure_gain': float(g)}
-                   for v, g in zip(cal.views, light.gains)],
     }
-    if outside:
-        meta['capture']['warning'] = f'the container reaches beyond the undistorted photograph in {outside}'
-    atomic_write_text(os.path.join(out, 'transforms.json'), json.dumps(meta, indent=2, default=float))
+    write_views(out, [v.name for v in cal.views], images, K, np.stack([v.c2w for v in cal.views]), meta,
+                [{'photo': v.name, 'exposure_gain': float(g)} for v, g in zip(cal.views, light.gains)])
     return report
 
 

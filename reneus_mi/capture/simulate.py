@@ -35,7 +35,7 @@ from reneus_mi.capture.board import Board
 from reneus_mi.capture.container import CONTACT_GAP, board_mesh, local_mesh
 from reneus_mi.capture.settings import CAPTURE_FILE, CaptureSettings, to_json
 from reneus_mi.data.cameras import look_at
-from reneus_mi.errors import ReneusError, exit_on_error
+from reneus_mi.errors import exit_on_error
 from reneus_mi.io import atomic_path, atomic_write_text
 from reneus_mi.objects import load_object
 from reneus_mi.scene import sensor_dict
