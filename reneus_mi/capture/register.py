@@ -85,15 +85,22 @@ def linear(image: np.ndarray) -> np.ndarray:
 
 
 def board_levels(lin: np.ndarray, white: np.ndarray, on_board: np.ndarray, keep=None):
-    """Median linear value of the black and of the white print, from pixels wholly of one and
-    a pixel away from the other (the lens blurs edges; ``keep`` limits the pixels); channels
-    kept if ``lin`` has them."""
+    """Median linear value of the black and of the white print (channels kept if ``lin`` has
+    them), or (None, None) when too little of either is seen.
+
+    From the pixels wholly of one print, and of those the half farthest from the other (the
+    lens blurs edges; the white ring around a corner may be two pixels wide); ``keep`` limits
+    the pixels.
+    """
     pick = on_board if keep is None else on_board & keep
     share = cv2.GaussianBlur(white, (0, 0), 1.0)
-    black, bright = pick & (share < 0.02), pick & (share > 0.98)
-    if black.sum() < 16 or bright.sum() < 16:
-        return None, None
-    return np.median(lin[black], axis=0), np.median(lin[bright], axis=0)
+    levels = []
+    for wholly, sign in ((pick & (white < 0.02), -1.0), (pick & (white > 0.98), 1.0)):
+        if wholly.sum() < 32:
+            return None, None
+        inner = wholly & (sign * share >= np.median(sign * share[wholly]))
+        levels.append(np.median(lin[inner], axis=0))
+    return tuple(levels)
 
 
 def changed_region(image: np.ndarray, white: np.ndarray, on_board: np.ndarray, square_px: float):
@@ -212,7 +219,8 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
     for v in range(n):
         white, on_board = predict_board(board, K, c2w[v], (w, h))
         trusted[v] = on_board & valid[v]
-        depth = np.linalg.norm(c2w[v, :3, 3])
+        # A square's size in pixels at the board's centre: the scale of the disagreement's gaps.
+        depth = np.linalg.norm(c2w[v, :3, 3] - [*np.multiply(board.size_mm, 0.5), 0.0])
         squares[v] = K[0, 0] * board.square_mm / depth
         if need:
             measured[v] = changed_region(images[v], white, trusted[v], squares[v])
