@@ -101,7 +101,7 @@ def _x(values) -> str:
     return 'x'.join(f'{v:g}' for v in values)
 
 
-def _numbers(text, count: int, kind, sep: str, name: str, where: str) -> tuple:
+def numbers(text, count: int, kind, sep: str, name: str, where: str) -> tuple:
     """``'12x9'``, ``[12, 9]`` or ``'1,2,3'`` as a tuple of ``count`` numbers of ``kind``."""
     parts = text.split(sep) if isinstance(text, str) else text
     try:
@@ -125,7 +125,7 @@ def _parse(name: str, value, where: str):
     if value is None:
         return None
     if name in _FORMATS:
-        return _numbers(value, *_FORMATS[name], name, where)
+        return numbers(value, *_FORMATS[name], name, where)
     kind = typing.get_type_hints(CaptureSettings)[name]
     base = next((k for k in typing.get_args(kind) if k is not type(None)), kind)
     try:
