@@ -62,8 +62,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     NeuS volume rendering inside it.
 
     The scene's shapes must all carry a smooth ``dielectric`` BSDF: together
-    they are the container, and its IOR is the BSDF's η (a mesh with vertex
-    normals bends light by them, as Mitsuba's ``dielectric`` does). The scene's
+    they are the container, and its IOR is the BSDF's η. A mesh bends light by
+    shading normals that follow its geometry, however its file was written: flat
+    across edges sharper than ``crease_angle``, smooth elsewhere (the file's stored
+    normals where it has them; :mod:`reneus_mi.data.container`). The scene's
     environment emitter (usually ``constant``, 0.8 in the paper) is the ambient
     light C_out. Inside the container lives a field (:mod:`reneus_mi.fields`):
     an SDF with a radiance, rendered with NeuS's unbiased weights.
@@ -106,6 +108,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
        - The ray tree (:class:`~reneus_mi.config.RenderConfig`): ``reneus``,
          ``neus`` or ``neus_plus``; D_re; ``ambient`` or ``black``; the output
          is C^(1/gamma); AOVs ``mask``, ``sparsity``, ``nx, ny, nz``.
+     * - crease_angle
+       - |float|
+       - Container faces that meet at more than this angle (degrees) are not smoothed
+         together: a box refracts through flat faces even when written with 8 shared
+         vertices. (Default: 30, like Blender's auto-smooth)
      * - light, container_pose
        - |string|, |bool|
        - The light outside: the scene's ``emitter``, or a refinable
@@ -274,12 +281,14 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         pose = surroundings.pose
         if pose is None:
             si = scene.ray_intersect(mi.Ray3f(rays.o, rays.d))
-            return _Hit(t=si.t, p=si.p, n=si.n, n_s=si.sh_frame.n, valid=si.is_valid())
+            p = mi.Point3f(rays.o + si.t * rays.d)
+            return _Hit(t=si.t, p=p, n=si.n, n_s=_shading_normal(surroundings.normals, si, p),
+                        valid=si.is_valid())
         # The container as loaded, seen by the rays taken into its frame: t is the same
         # parameter along both rays when the direction keeps its length.
         o_c, d_c = pose.to_container(rays.o, rays.d)
         si = scene.ray_intersect(mi.Ray3f(o_c, d_c))
-        n_s = _shading_normal(surroundings.shapes, si, o_c + si.t * d_c)
+        n_s = _shading_normal(surroundings.normals, si, o_c + si.t * d_c)
         return _Hit(t=si.t, p=mi.Point3f(rays.o + si.t * rays.d), n=pose.normal_to_world(si.n),
                     n_s=pose.normal_to_world(n_s), valid=si.is_valid())
 
@@ -395,7 +404,7 @@ def _surroundings(scene: mi.Scene, render: RenderConfig) -> Surroundings:
                           '(ply, obj); the scene has another kind of shape')
     bbox = scene.bbox()
     return Surroundings(eta, shapes, scene.environment(), light=render.light, pose=render.container_pose,
-                        pivot=0.5 * (bbox.min + bbox.max))
+                        pivot=0.5 * (bbox.min + bbox.max), crease_angle=render.crease_angle)
 
 
 def _same(a: tuple, b: tuple) -> bool:
@@ -470,13 +479,14 @@ def _offset(p: mi.Point3f, n: mi.Vector3f, d: mi.Vector3f) -> mi.Point3f:
     return mi.Point3f(p + dr.detach(dr.mulsign(mi.Vector3f(n), dr.dot(n, d)) * (size * mi.math.RayEpsilon)))
 
 
-def _shading_normal(shapes, si: mi.SurfaceInteraction3f, p: mi.Point3f) -> mi.Vector3f:
-    """The shading normal at ``p`` on the triangle ``si`` hit, from barycentrics of ``p``: unlike
-    ``si.sh_frame.n`` it follows ``p`` when the ray moves (the pose's derivative on curved glass)."""
-    n_s = mi.Vector3f(si.n)
-    for shape in shapes:
-        if not shape.has_vertex_normals():
-            continue
+def _shading_normal(normals: dict, si: mi.SurfaceInteraction3f, p: mi.Point3f) -> mi.Vector3f:
+    """The shading normal at ``p`` on the triangle ``si`` hit: its corners' normals
+    (``normals[shape]``, the container's rule, :func:`~reneus_mi.data.container.corner_normals`)
+    interpolated at the barycentrics of ``p``. Unlike ``si.sh_frame.n`` it follows ``p`` when
+    the ray moves (the pose's derivative on curved glass). Shapes that are not meshes
+    (Mitsuba's analytic sphere) keep their own."""
+    n_s = mi.Vector3f(si.sh_frame.n)
+    for shape, table in normals.items():
         on = si.is_valid() & (si.shape == mi.ShapePtr(shape))
         f = shape.face_indices(si.prim_index, on)
         p0, p1, p2 = (shape.vertex_position(f[i], on) for i in range(3))
@@ -485,9 +495,11 @@ def _shading_normal(shapes, si: mi.SurfaceInteraction3f, p: mi.Point3f) -> mi.Ve
         inv = dr.rcp(dr.maximum(d11 * d22 - d12 * d12, 1e-20))
         b1 = (d22 * dr.dot(e, e1) - d12 * dr.dot(e, e2)) * inv
         b2 = (d11 * dr.dot(e, e2) - d12 * dr.dot(e, e1)) * inv
-        n = ((1.0 - b1 - b2) * shape.vertex_normal(f[0], on) + b1 * shape.vertex_normal(f[1], on)
-             + b2 * shape.vertex_normal(f[2], on))
-        n_s = dr.select(on, dr.normalize(mi.Vector3f(n)), n_s)
+        corner = 3 * si.prim_index
+        n = ((1.0 - b1 - b2) * dr.gather(mi.Vector3f, table, corner, on)
+             + b1 * dr.gather(mi.Vector3f, table, corner + 1, on)
+             + b2 * dr.gather(mi.Vector3f, table, corner + 2, on))
+        n_s = dr.select(on, dr.normalize(n), n_s)
     return n_s
 
 

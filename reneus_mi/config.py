@@ -23,7 +23,9 @@ import math
 import typing
 from dataclasses import dataclass
 
+from reneus_mi.data.container import CREASE_ANGLE
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
+from reneus_mi.mesh import POSTPROCESS_MODES
 from reneus_mi.fields import FIELD_CONFIGS, FieldConfig, NeuSFieldConfig
 from reneus_mi.ray_samplers import SamplerConfig
 from reneus_mi.surroundings import LIGHTS
@@ -59,12 +61,18 @@ class RenderConfig:
     container_pose: bool = False
     """Give the container a pose and per-axis scale (container.translation, .rotation,
     .log_scale), starting at the scene's placement."""
+    crease_angle: float = CREASE_ANGLE
+    """Container faces meeting at more than this angle (degrees) are not smoothed together:
+    each side bends light by its own faces (a box stays a box however its file was written);
+    smoother surfaces use the file's stored normals, or the mean of their faces' normals."""
 
     def __post_init__(self):
         check_choice(self, 'mode', MODES)
         check_choice(self, 'terminal', TERMINALS)
         check_choice(self, 'light', LIGHTS)
         check_numbers(self, at_least_zero=('max_depth', 'rr_threshold'), positive=('gamma',))
+        if not 0.0 <= self.crease_angle <= 180.0:
+            raise ReneusError(f'crease_angle={self.crease_angle}: expected degrees in [0, 180]')
 
 
 @dataclass
@@ -119,9 +127,10 @@ class TrainConfig:
     """Steps between checkpoints (written atomically; --resume continues from the last)."""
     mesh_resolution: int = 256
     """Marching-cubes grid resolution of the final mesh."""
-    postprocess: str = 'largest'
-    """Mesh post-processing: 'largest' (keep the largest connected component, the paper),
-    'crop' (drop what lies outside the container) or 'none'."""
+    postprocess: str = 'clean'
+    """Mesh post-processing: 'clean' (drop floating fragments, keep parts that noise cut off
+    next to the body), 'largest' (keep the largest connected component: the paper), 'crop'
+    (drop what lies outside the container) or 'none'."""
     divergence_factor: float = 50.0
     """Stop when the loss exceeds this multiple of its lowest value so far (after warm-up)."""
     refine_ior: bool = False
@@ -155,7 +164,7 @@ class TrainConfig:
                                      'validation_view', 'trans_weight', 'eikonal_weight',
                                      'learning_rate_alpha', 'max_minutes', 'seed', 'refine_after',
                                      'silhouette_weight'))
-        check_choice(self, 'postprocess', ('largest', 'crop', 'none'))
+        check_choice(self, 'postprocess', POSTPROCESS_MODES)
         check_choice(self, 'refine_light', ('none',) + LIGHTS[1:])
         lo, hi = self.ior_range
         if not 1.0 < lo < hi:

@@ -32,7 +32,7 @@ import trimesh
 from reneus_mi import guards
 from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.io import atomic_write_text
-from reneus_mi.mesh import POSTPROCESS_MODES, inside, load_container, load_mesh, postprocess
+from reneus_mi.mesh import POSTPROCESS_MODES, components, inside, load_container, load_mesh, postprocess
 
 #: The paper's minimum number of sample points.
 MIN_POINTS = 10000
@@ -99,6 +99,7 @@ def _table(result: dict) -> str:
         ('precision', f"{result['precision']:.4f}"),
         ('recall', f"{result['recall']:.4f}"),
         ('points (pred kept / sampled)', f"{result['n_pred']} / {result['n_points']}"),
+        ('connected components', str(result['components'])),
         ('post-processing', result['postprocess']),
     ]
     width = max(len(name) for name, _ in rows)
@@ -118,6 +119,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument('--postprocess', choices=POSTPROCESS_MODES, default='largest',
                         help="clean-up of PRED before measuring: 'largest' keeps the connected component "
                              "with most vertices (the paper's rule, drops real parts of multi-part objects), "
+                             "'clean' drops floating fragments only, "
                              "'crop' removes faces outside --container, 'none' measures PRED as is "
                              '(default: %(default)s)')
     parser.add_argument('--threshold', type=float, default=0.01,
@@ -143,6 +145,7 @@ def main(argv: list[str] | None = None) -> dict:
         result = chamfer(pred, gt, n_points=args.points, seed=args.seed,
                          threshold=args.threshold, container=container)
         result['postprocess'] = args.postprocess
+        result['components'] = components(pred)
         if args.json:
             atomic_write_text(args.json, json.dumps({'pred': args.pred, 'gt': args.gt, **result},
                                                     indent=2))

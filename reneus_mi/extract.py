@@ -17,7 +17,7 @@ from reneus_mi import guards
 from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.frame import FieldFrame
 from reneus_mi.io import atomic_export
-from reneus_mi.mesh import MESH_EXTENSIONS, POSTPROCESS_MODES, extract_mesh, postprocess
+from reneus_mi.mesh import MESH_EXTENSIONS, POSTPROCESS_MODES, components, extract_mesh, postprocess
 
 
 def field_mesh(field, frame: FieldFrame, resolution: int, mode: str, container: str | None = None):
@@ -67,8 +67,9 @@ def main(argv=None) -> int:
     parser.add_argument('checkpoint', help='checkpoint.npz of a reconstruction')
     parser.add_argument('-o', '--output', default='mesh.ply', help='mesh file (.ply, .obj, .stl, .off)')
     parser.add_argument('--resolution', type=int, default=512, help='marching-cubes grid resolution')
-    parser.add_argument('--postprocess', choices=POSTPROCESS_MODES, default='largest',
-                        help="'largest' connected component (the paper), 'crop' to the container, or 'none'")
+    parser.add_argument('--postprocess', choices=POSTPROCESS_MODES, default='clean',
+                        help="'clean' (drop floating fragments, keep cut-off thin parts), 'largest' connected "
+                             "component (the paper), 'crop' to the container, or 'none' (default: %(default)s)")
     parser.add_argument('--overwrite', action='store_true', help='replace an existing output file')
     args = parser.parse_args(argv)
     with exit_on_error():
@@ -80,8 +81,8 @@ def main(argv=None) -> int:
         field = load_field(args.checkpoint)
         mesh = field_mesh(field, frame, args.resolution, args.postprocess, container)
         write_mesh(mesh, args.output)
-    print(f'wrote {args.output}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces '
-          f'(resolution {args.resolution}, postprocess {args.postprocess})')
+    print(f'wrote {args.output}: {len(mesh.vertices)} vertices, {len(mesh.faces)} faces, '
+          f'{components(mesh)} component(s) (resolution {args.resolution}, postprocess {args.postprocess})')
     return 0
 
 

@@ -23,7 +23,12 @@ from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.fields.base import Field
 
 #: Post-processing rules understood by :func:`postprocess`.
-POSTPROCESS_MODES = ('largest', 'crop', 'none')
+POSTPROCESS_MODES = ('clean', 'largest', 'crop', 'none')
+#: :func:`clean` keeps components this many median edge lengths (about two marching-cubes
+#: cells) from the kept surface ...
+CLEAN_GAP = 4.0
+#: ... and components with at least this share of the largest one's area.
+CLEAN_SHARE = 0.1
 #: Mesh files the package reads.
 MESH_EXTENSIONS = ('.ply', '.obj', '.stl', '.off')
 
@@ -114,21 +119,59 @@ def extract_mesh(field: Field, lo, hi, resolution=256, *, to_world=None) -> trim
     return trimesh.Trimesh(vertices=verts, faces=faces, process=False)
 
 
-def largest_component(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    """Keep the connected component (through shared edges) with the most vertices."""
+def component_labels(mesh: trimesh.Trimesh) -> np.ndarray:
+    """The connected component (through shared edges, vertices welded by position) of each face."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    if len(mesh.faces) == 0:
-        return mesh.copy()
-    edges = mesh.edges_unique
-    n = len(mesh.vertices)
+    welded = mesh.copy()
+    welded.merge_vertices(merge_tex=True, merge_norm=True)
+    edges = welded.edges_unique
+    n = len(welded.vertices)
     graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
-    # Count only vertices that a face uses: stray vertices are not a component.
-    used = np.unique(mesh.faces)
-    keep = np.argmax(np.bincount(labels[used]))
-    return _keep_faces(mesh, labels[mesh.faces[:, 0]] == keep)
+    # Stray vertices are no component: number the faces' components 0..k-1.
+    return np.unique(labels[welded.faces[:, 0]], return_inverse=True)[1].ravel()
+
+
+def components(mesh: trimesh.Trimesh) -> int:
+    """The number of connected pieces of ``mesh`` (0 for a mesh without faces)."""
+    return int(component_labels(mesh).max()) + 1 if len(mesh.faces) else 0
+
+
+def largest_component(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Keep the connected component with the most vertices (the paper's clean-up)."""
+    if len(mesh.faces) == 0:
+        return mesh.copy()
+    labels = component_labels(mesh)
+    vertices = np.zeros(labels.max() + 1)
+    np.add.at(vertices, labels, 1.0)   # faces of a closed mesh: twice its vertices
+    return _keep_faces(mesh, labels == np.argmax(vertices))
+
+
+def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Drop floating fragments, keep the object's parts: the largest component, every
+    component within :data:`CLEAN_GAP` median edge lengths of what is kept (thin parts
+    that noise cut off lie next to the body: kept link by link), and any component of
+    at least :data:`CLEAN_SHARE` of the largest's area (a real second part)."""
+    from scipy.spatial import cKDTree
+
+    if len(mesh.faces) == 0:
+        return mesh.copy()
+    labels = component_labels(mesh)
+    area = np.bincount(labels, weights=mesh.area_faces)
+    keep = (area >= CLEAN_SHARE * area.max())
+    keep[np.argmax(area)] = True
+    gap = CLEAN_GAP * float(np.median(mesh.edges_unique_length))
+    vertices = [np.unique(mesh.faces[labels == c]) for c in range(len(area))]
+    grown = True
+    while grown and not keep.all():
+        tree = cKDTree(mesh.vertices[np.concatenate([vertices[c] for c in np.flatnonzero(keep)])])
+        near = [c for c in np.flatnonzero(~keep)
+                if tree.query(mesh.vertices[vertices[c]], distance_upper_bound=gap)[0].min() <= gap]
+        keep[near] = True
+        grown = bool(near)
+    return _keep_faces(mesh, keep[labels])
 
 
 def _keep_faces(mesh: trimesh.Trimesh, mask: np.ndarray) -> trimesh.Trimesh:
@@ -233,9 +276,13 @@ def crop(mesh: trimesh.Trimesh, container: trimesh.Trimesh) -> trimesh.Trimesh:
 def postprocess(mesh: trimesh.Trimesh, mode: str, container: trimesh.Trimesh | None = None) -> trimesh.Trimesh:
     """Apply one rule of :data:`POSTPROCESS_MODES` to a copy of ``mesh``.
 
-    ``'largest'`` is the paper's (largest component by vertex count), ``'crop'``
-    keeps what lies inside ``container``, ``'none'`` returns a copy.
+    ``'clean'`` drops floating fragments and keeps the object's parts (:func:`clean`),
+    ``'largest'`` is the paper's (largest component by vertex count: a leg that noise
+    cut off goes with the fragments), ``'crop'`` keeps what lies inside ``container``,
+    ``'none'`` returns a copy.
     """
+    if mode == 'clean':
+        return clean(mesh)
     if mode == 'largest':
         return largest_component(mesh)
     if mode == 'crop':

@@ -126,7 +126,8 @@ def run(args) -> str:
     if gt:
         from reneus_mi.evaluate import chamfer, load_mesh
         c = chamfer(load_mesh(result['mesh']), load_mesh(gt))
-        lines.append(f"Chamfer-L1 x100 to the ground truth: {c['chamfer']:.3f} (postprocess {cfg.postprocess})")
+        lines.append(f"Chamfer-L1 x100 to the ground truth: {c['chamfer']:.3f} (postprocess {cfg.postprocess}, "
+                     f"{result['components']} component(s))")
     return '\n'.join(lines)
 
 

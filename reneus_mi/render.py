@@ -36,7 +36,11 @@ def load_scene(path: str) -> mi.Scene:
     try:
         scene = mi.load_file(path)
     except Exception as e:  # Mitsuba reports parse and plugin errors as RuntimeError
-        raise ReneusError(f'{path}: cannot load the scene: {user_message(e)}') from None
+        message = user_message(e)
+        if 'is this a triangle mesh' in message or 'trailing tokens after end of PLY' in message:
+            message += (' (Mitsuba reads PLY files of triangles only: export the mesh triangulated, '
+                        'or write the scene with python -m reneus_mi.scene, which does)')
+        raise ReneusError(f'{path}: cannot load the scene: {message}') from None
     check_scene_containers(scene, path)
     return scene
 

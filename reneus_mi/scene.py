@@ -27,9 +27,9 @@ import numpy as np
 from reneus_mi import guards
 from reneus_mi.data import Dataset, load_dataset
 from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
-from reneus_mi.data.container import mesh_type
+from reneus_mi.data.container import load_container, mesh_type, mitsuba_reads
 from reneus_mi.errors import ReneusError, exit_on_error
-from reneus_mi.io import atomic_open
+from reneus_mi.io import atomic_export, atomic_open
 
 #: Container IOR when the dataset states none (the paper's synthetic glass).
 DEFAULT_IOR = 1.45
@@ -99,13 +99,16 @@ def _relative(path: str, xml_dir: str) -> str:
 
 
 def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient: float | None = None,
-              **integrator_settings) -> ET.ElementTree:
-    """Build the scene of :func:`write_scene`; file paths relative to ``xml_dir``."""
+              container: str | None = None, **integrator_settings) -> ET.ElementTree:
+    """Build the scene of :func:`write_scene`; file paths relative to ``xml_dir``.
+
+    ``container`` names the mesh file the scene gives Mitsuba (default: the dataset's)."""
     ds.validate()
+    container = container or ds.container
     clash = [k for k in integrator_settings if integrator == 'reneus' and k in _RESERVED]
     if clash:
         raise ReneusError(f"integrator settings {clash}: set by write_scene from the dataset")
-    shape_type = None if ds.container is None else mesh_type(ds.container)
+    shape_type = None if container is None else mesh_type(container)
     ior = ds.ior
     if ior is None and ds.container is not None:
         warnings.warn(f"{ds.root}: dataset states no container IOR; using {DEFAULT_IOR}")
@@ -142,9 +145,9 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
     emitter = ET.SubElement(scene, 'emitter', type='constant')
     ET.SubElement(emitter, 'rgb', name='radiance', value=', '.join(map(_num, np.broadcast_to(ambient, (3,)))))
 
-    if ds.container is not None:
+    if container is not None:
         shape = ET.SubElement(scene, 'shape', type=shape_type, id='container')
-        ET.SubElement(shape, 'string', name='filename', value=_relative(ds.container, xml_dir))
+        ET.SubElement(shape, 'string', name='filename', value=_relative(container, xml_dir))
         bsdf = ET.SubElement(shape, 'bsdf', type='dielectric')
         ET.SubElement(bsdf, 'float', name='int_ior', value=_num(ior))
         # The paper's outside medium is air with an index of exactly 1.
@@ -156,19 +159,30 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
 
 
 def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: float | None = None,
-                **integrator_settings) -> None:
+                overwrite: bool = False, **integrator_settings) -> None:
     """Write the Mitsuba 3 scene XML of ``ds`` to ``path``, lit by a constant ``ambient``
     (default: the dataset's measured one, else :data:`AMBIENT_RADIANCE`).
 
     ``integrator_settings`` become properties of the integrator, typed by
     their Python type (bool, int, float, str). A dataset without a container
-    (the paper's "w/o box" data) gives a scene without one. Nothing is
-    written when anything is wrong.
+    (the paper's "w/o box" data) gives a scene without one. A container file that
+    Mitsuba cannot read (a PLY of quads, Blender's default) is written triangulated
+    beside the scene (``<scene>_container.ply``; ``overwrite`` replaces an earlier
+    one). Nothing is written when anything is wrong.
     """
     xml_dir = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(xml_dir):
         raise ReneusError(f"{path}: folder {xml_dir} does not exist")
-    tree = scene_xml(ds, xml_dir, integrator=integrator, ambient=ambient, **integrator_settings)
+    container = ds.container
+    if container is not None and not mitsuba_reads(container):
+        # Mitsuba reads triangle PLYs only: the scene names a triangulated copy of its own.
+        container = guards.check_output_file(os.path.splitext(path)[0] + '_container.ply',
+                                             inputs=[ds.root, ds.container], overwrite=overwrite,
+                                             what='triangulated container')
+    tree = scene_xml(ds, xml_dir, integrator=integrator, ambient=ambient, container=container,
+                     **integrator_settings)
+    if container != ds.container:
+        atomic_export(load_container(ds.container), container)
     with atomic_open(path, 'wb') as f:
         tree.write(f, encoding='utf-8', xml_declaration=True)
 
@@ -246,7 +260,7 @@ def main(argv: list[str] | None = None) -> None:
             settings = {'preset': args.preset, **typed_settings(args.settings, args.preset)}
         else:  # another plugin's settings: typed by their look
             settings = {key: _literal(text) for key, text in args.settings}
-        write_scene(ds, args.output, integrator=args.integrator, **settings)
+        write_scene(ds, args.output, integrator=args.integrator, overwrite=args.overwrite, **settings)
 
 
 if __name__ == '__main__':

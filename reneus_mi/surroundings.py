@@ -29,6 +29,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from reneus_mi.data.container import CREASE_ANGLE, shading_normals
 from reneus_mi.errors import ReneusError
 
 #: Light models: the scene's emitter as given, one refinable RGB radiance, order-2 SH.
@@ -174,9 +175,12 @@ class Surroundings:
     """The container's IOR and pose and the light of one scene, owned by the integrator."""
 
     def __init__(self, eta: float, shapes: list, emitter: mi.Emitter, *, light: str = 'emitter',
-                 pose: bool = False, pivot=(0.0, 0.0, 0.0)):
+                 pose: bool = False, pivot=(0.0, 0.0, 0.0), crease_angle: float = CREASE_ANGLE):
         self.eta = mi.Float(eta)
         self.shapes = shapes
+        #: The shading normals of each mesh's triangle corners (the container's optics).
+        self.normals = {shape: shading_normals(shape, crease_angle) for shape in shapes
+                        if isinstance(shape, mi.Mesh)}
         self.emitter = emitter
         self.light = None if light == 'emitter' else Light(light, emitter)
         self.pose = ContainerPose(pivot) if pose else None

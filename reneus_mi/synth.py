@@ -13,8 +13,8 @@ Output of ``make_dataset(obj, DIR)``::
 
     DIR/gt.ply            object, with linear albedo as the vertex attribute
                           ``vertex_color`` (Mitsuba's name; trimesh reads the geometry)
-    DIR/box.ply           the container: a box has unshared vertices (flat normals in any
-                          loader), the rounded block and the jar carry vertex normals
+    DIR/box.ply           the container, as most tools write one: shared vertices, no normals
+                          for a box, exact vertex normals for the rounded block and the jar
     DIR/box/, DIR/nobox/  Blender format, with scene.xml (reneus_mi.scene.write_scene)
     DIR/box_neus/, DIR/nobox_neus/   the same in NeuS format
     DIR/synth.json        settings, spp, max_depth and the measured noise
@@ -37,7 +37,7 @@ from tqdm import tqdm
 from reneus_mi import guards
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
-from reneus_mi.data.container import container_masks
+from reneus_mi.data.container import container_masks, container_shape, shading_mesh
 from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.io import atomic_export, atomic_path, atomic_write_text
 from reneus_mi.objects import CONTAINERS, OBJECTS, load_object, normalize
@@ -103,7 +103,8 @@ def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_
                ior: float = IOR, ambient: float = ENVIRONMENT) -> dict:
     """The Mitsuba scene: object (diffuse, vertex-colour albedo), glass container, environment.
 
-    A container mesh with vertex normals (the smooth ones) is shaded with them."""
+    The container bends light by the normals the ``reneus`` integrator gives its file
+    (:func:`~reneus_mi.data.container.shading_mesh`): flat faces stay flat."""
     scene = {
         'type': 'scene',
         # Russian roulette off: it would add noise to exactly the long paths
@@ -116,8 +117,7 @@ def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_
                        'type': 'mesh_attribute', 'name': 'vertex_color'}}},
     }
     if box_mesh is not None:
-        scene['box'] = {'type': 'ply', 'filename': box_mesh,
-                        'bsdf': {'type': 'dielectric', 'int_ior': ior, 'ext_ior': 1.0}}
+        scene['box'] = shading_mesh(box_mesh, bsdf={'type': 'dielectric', 'int_ior': ior, 'ext_ior': 1.0})
     return scene
 
 
@@ -158,19 +158,15 @@ def write_object(mesh: trimesh.Trimesh, path: str) -> None:
         shape.write_ply(tmp)
 
 
-def write_container(container: trimesh.Trimesh, path: str, smooth: bool) -> None:
-    """Write the container: a flat one (a box) with one vertex per face corner (no loader can
-    smooth its normals), a ``smooth`` one with its vertex normals."""
-    if not smooth:
-        flat = container.copy()
-        flat.unmerge_vertices()
-        atomic_export(flat, path)
-        return
-    normals = np.asarray(container.vertex_normals)
-    data = trimesh.exchange.ply.export_ply(container, vertex_normal=True)
+def write_container(container: trimesh.Trimesh, path: str, normals: bool) -> None:
+    """Write the container as most tools write one: shared vertices, and its vertex
+    normals where it has exact ones (the smooth containers); a box carries none (the
+    crease rule of :mod:`reneus_mi.data.container` keeps its faces flat)."""
+    data = trimesh.exchange.ply.export_ply(container, vertex_normal=normals)
     with atomic_path(path) as tmp, open(tmp, 'wb') as f:
         f.write(data)
-    if not np.allclose(trimesh.load(path, process=False).vertex_normals, normals, atol=1e-5):
+    if normals and not np.allclose(trimesh.load(path, process=False).vertex_normals,
+                                   container.vertex_normals, atol=1e-5):
         raise ReneusError(f'{path}: the vertex normals did not survive writing')
 
 
@@ -228,7 +224,7 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     os.makedirs(out_dir, exist_ok=True)
     gt_path, box_path = os.path.join(out_dir, 'gt.ply'), os.path.join(out_dir, 'box.ply')
     write_object(mesh, gt_path)
-    write_container(box, box_path, smooth=container != 'box')
+    write_container(box, box_path, normals=container != 'box')
 
     masks = container_masks(box_path, K, c2w, res, res)
     # Seeds of renders are spaced by this stride so that no two renders (views,
@@ -281,21 +277,21 @@ def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=
     if ior is not None:
         out.ior = ior
     if offset is not None or scale is not None:
-        mesh = trimesh.load(ds.container, process=False)
-        # Whether the file carries vertex normals, as Mitsuba (which renders it) reads it.
-        smooth = mi.load_dict({'type': 'ply', 'filename': ds.container}).has_vertex_normals()
-        normals = np.asarray(mesh.vertex_normals) if smooth else None
+        # The file moved as Mitsuba reads it, normals included: the crease rule reads the
+        # copy as it read the original.
+        shape = container_shape(ds.container)
+        params = mi.traverse(shape)
+        v = np.array(params['vertex_positions'], np.float64).reshape(-1, 3)
+        lo, hi = v.min(axis=0), v.max(axis=0)
         s = 1.0 if scale is None else scale
-        centre = mesh.bounds.mean(axis=0)
-        M = np.eye(4)
-        M[:3, :3] *= s
-        M[:3, 3] = (1.0 - s) * centre + np.asarray(offset if offset is not None else (0, 0, 0)) * mesh.extents.max()
-        mesh.apply_transform(M)
+        shift = np.asarray(offset if offset is not None else (0, 0, 0)) * (hi - lo).max()
+        # A uniform scale and a shift leave the normals as they were.
+        params['vertex_positions'] = mi.Float(((v - 0.5 * (lo + hi)) * s + 0.5 * (lo + hi) + shift)
+                                              .astype(np.float32).ravel())
+        params.update()
         out.container = target
-        if smooth:
-            # A uniform scale and a shift leave the normals as they were.
-            mesh.vertex_normals = normals
-        write_container(mesh, out.container, smooth)
+        with atomic_path(target) as tmp:
+            shape.write_ply(tmp)
     return out
 
 

@@ -44,6 +44,7 @@ from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.extract import field_mesh, write_mesh
 from reneus_mi.fields import load_field
 from reneus_mi.frame import FieldFrame
+from reneus_mi.mesh import components
 from reneus_mi.pixel_sampler import JITTER, PixelSampler, step_seed
 from reneus_mi.render import write_image
 from reneus_mi.variant import is_cuda
@@ -363,7 +364,7 @@ class Trainer:
         if cfg.refine_pose:
             result['container'] = self.write_container(os.path.join(self.out, 'container_refined.ply'))
         try:
-            self.write_mesh(mesh_path)
+            result['components'] = components(self.write_mesh(mesh_path))
         except NoSurfaceError as e:
             # A run never ends without its mesh file: an empty one, and the reason.
             write_mesh(trimesh.Trimesh(), mesh_path)

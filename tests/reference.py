@@ -10,13 +10,21 @@ SPHERE_COLOR = (0.9, 0.35, 0.1)
 AMBIENT = 0.8
 
 
-def container(ior=1.45, mesh=None):
-    """The glass block (a cube, rotated and scaled), or the container in the PLY file ``mesh``."""
+#: Where the glass block stands: rotated 25 degrees about y (its size is its own).
+BLOCK_ROTATION = mi.ScalarTransform4f().rotate([0, 1, 0], 25)
+#: Half-extents of the glass block.
+BLOCK_HALF = (0.55, 0.45, 0.5)
+
+
+def container(ior=1.45, mesh=None, to_world=None):
+    """The glass block (Mitsuba's ``cube``: flat faces, rotated and scaled), or the container
+    in the mesh file ``mesh`` (PLY or OBJ) placed by ``to_world``."""
+    bsdf = {'type': 'dielectric', 'int_ior': ior}
     if mesh is not None:
-        return {'type': 'ply', 'filename': mesh, 'bsdf': {'type': 'dielectric', 'int_ior': ior}}
-    return {'type': 'cube',
-            'to_world': mi.ScalarTransform4f().rotate([0, 1, 0], 25).scale([0.55, 0.45, 0.5]),
-            'bsdf': {'type': 'dielectric', 'int_ior': ior}}
+        from reneus_mi.data.container import mesh_type
+        shape = {'type': mesh_type(mesh), 'filename': str(mesh), 'bsdf': bsdf}
+        return shape if to_world is None else {**shape, 'to_world': to_world}
+    return {'type': 'cube', 'to_world': BLOCK_ROTATION.scale(list(BLOCK_HALF)), 'bsdf': bsdf}
 
 
 def sensor(res):
@@ -25,14 +33,14 @@ def sensor(res):
             'film': {'type': 'hdrfilm', 'width': res, 'height': res, 'rfilter': {'type': 'box'}}}
 
 
-def reneus_scene(res=24, ior=1.45, mesh=None, **integrator):
+def reneus_scene(res=24, ior=1.45, mesh=None, to_world=None, **integrator):
     settings = {'type': 'reneus', 'gamma': 1.0, **integrator}
     if settings.setdefault('field', 'sphere') == 'sphere':
         settings = {'field_radius': SPHERE_RADIUS, 'field_color': SPHERE_COLOR,
                     'field_inv_s': 4000.0, **settings}
     return mi.load_dict({'type': 'scene', 'integrator': settings, 'sensor': sensor(res),
                          'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': AMBIENT}},
-                         'container': container(ior, mesh)})
+                         'container': container(ior, mesh, to_world)})
 
 
 def path_scene(res=24, ior=1.45, max_depth=3, mesh=None):

@@ -111,3 +111,36 @@ def test_inside_rejects_an_open_container():
     open_box.update_faces(np.arange(len(open_box.faces)) > 0)
     with pytest.raises(ValueError, match='not closed'):
         inside(np.zeros((1, 3)), open_box)
+
+
+def _body_with_fragments():
+    """A body, a leg that noise cut into two pieces beside it, a second real part and a floater."""
+    body = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
+    upper = trimesh.creation.cylinder(radius=0.03, height=0.3, sections=16)
+    upper.apply_translation((0.0, 0.0, -0.665))           # 0.01 below the body
+    lower = upper.copy()
+    lower.apply_translation((0.0, 0.0, -0.31))            # 0.01 below the upper piece
+    second = trimesh.creation.icosphere(subdivisions=3, radius=0.25)
+    second.apply_translation((0.0, 1.2, 0.0))             # far, but a real part
+    floater = trimesh.creation.icosphere(subdivisions=1, radius=0.02)
+    floater.apply_translation((0.7, 0.7, 0.0))            # 0.49 from the body
+    return trimesh.util.concatenate([body, upper, lower, second, floater])
+
+
+def test_clean_drops_floaters_and_keeps_cut_off_parts():
+    from reneus_mi.mesh import components
+    mesh = _body_with_fragments()
+    assert components(mesh) == 5
+    kept = postprocess(mesh, 'clean')
+    assert components(kept) == 4
+    assert kept.bounds[0][2] < -0.97                           # the leg's lower piece is there
+    assert not np.any(np.linalg.norm(kept.vertices - (0.7, 0.7, 0.0), axis=1) < 0.05)
+    # The paper's rule keeps the body alone.
+    assert components(postprocess(mesh, 'largest')) == 1
+
+
+def test_components_counts_pieces_of_a_per_face_mesh():
+    from reneus_mi.mesh import components
+    soup = _body_with_fragments()
+    soup.unmerge_vertices()
+    assert components(soup) == 5 and components(trimesh.Trimesh()) == 0

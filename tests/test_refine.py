@@ -147,7 +147,7 @@ def rounded_block(tmp_path_factory):
     mesh.apply_transform(rot)
     mesh.vertex_normals = normals @ rot[:3, :3].T
     path = str(tmp_path_factory.mktemp('rounded') / 'rounded.ply')
-    write_container(mesh, path, smooth=True)
+    write_container(mesh, path, normals=True)
     return path
 
 

@@ -150,3 +150,27 @@ def test_container_parts_apart_or_hollow_pass_overlapping_fail():
         _check_disjoint([outer, trimesh.creation.box()], 'scene.xml')    # glass in glass
     with pytest.raises(ValueError, match='container parts overlap'):
         _check_disjoint([outer, trimesh.creation.box().apply_translation((0.8, 0.8, 0.8))], 's')
+
+
+def test_container_mitsuba_cannot_read_gets_a_triangulated_copy(tmp_path):
+    # Blender writes PLY quads, which Mitsuba's PLY reader refuses: the scene names a
+    # triangulated copy beside itself, the same surface, and leaves the dataset alone.
+    blender = os.path.join(os.path.dirname(__file__), 'data', 'containers', 'blender_cube.ply')
+    ds = make_dataset(tmp_path / 'data')
+    with open(blender, 'rb') as src, open(ds.container, 'wb') as dst:
+        dst.write(src.read())
+    ds.masks = container_masks(ds.container, ds.K, ds.c2w, H, W)
+    before = sorted(os.listdir(tmp_path / 'data' / 'meshes'))
+    xml = tmp_path / 'scene.xml'
+    write_scene(ds, str(xml), integrator='path')
+    copy = tmp_path / 'scene_container.ply'
+    assert ET.parse(xml).getroot().find('shape/string').get('value') == 'scene_container.ply'
+    assert sorted(os.listdir(tmp_path / 'data' / 'meshes')) == before
+    loaded = mi.load_file(str(xml)).shapes()[0]
+    assert loaded.face_count() == 12
+    assert np.allclose(np.array(loaded.bbox().max), [0.55, 0.45, 0.5])
+    # A second write refuses to replace the copy unless asked.
+    with pytest.raises(Exception, match='exists'):
+        write_scene(ds, str(tmp_path / 'scene.xml'), integrator='path')
+    write_scene(ds, str(xml), integrator='path', overwrite=True)
+    assert copy.is_file()

@@ -75,7 +75,7 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
     """Write the dataset into ``out`` (checked by the caller); return the report."""
     n, h, w = images.shape[:3]
     write_container(board_mesh(s.container, s.size_mm, reg.pose), os.path.join(out, 'container.ply'),
-                    smooth=s.container != 'box')
+                    normals=s.container != 'box')
     write_png(os.path.join(out, 'board.png'), board.pattern(BOARD_PX_PER_MM).astype(np.float32) / 255.0)
     report = {
         'frame': FRAME,

@@ -35,6 +35,7 @@ from reneus_mi.capture.board import Board
 from reneus_mi.capture.container import CONTACT_GAP, board_mesh, local_mesh
 from reneus_mi.capture.settings import CAPTURE_FILE, CaptureSettings, to_json
 from reneus_mi.data.cameras import look_at
+from reneus_mi.data.container import shading_mesh
 from reneus_mi.errors import exit_on_error
 from reneus_mi.io import atomic_path, atomic_write_text
 from reneus_mi.objects import load_object
@@ -145,9 +146,10 @@ def board_shape(rig: Rig) -> mi.Mesh:
     lo, hi = -m, np.array([w + m, h + m])
     v = np.array([[lo, lo, 0], [hi[0], lo, 0], [hi[0], hi[1], 0], [lo, hi[1], 0]], np.float32)
     uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
-    shape = mi.Mesh('board', 4, 2, has_vertex_texcoords=True,
-                    props=_props(mi.load_dict({'type': 'diffuse', 'reflectance': {
-                        'type': 'bitmap', 'bitmap': mi.Bitmap(albedo[..., None]), 'raw': True}})))
+    props = mi.Properties()
+    props['bsdf'] = mi.load_dict({'type': 'diffuse', 'reflectance': {
+        'type': 'bitmap', 'bitmap': mi.Bitmap(albedo[..., None]), 'raw': True}})
+    shape = mi.Mesh('board', 4, 2, has_vertex_texcoords=True, props=props)
     params = mi.traverse(shape)
     params['vertex_positions'] = mi.Float(v.ravel())
     # Wound so that the face normal is -z, towards the cameras.
@@ -155,12 +157,6 @@ def board_shape(rig: Rig) -> mi.Mesh:
     params['vertex_texcoords'] = mi.Float(uv.ravel())
     params.update()
     return shape
-
-
-def _props(bsdf) -> mi.Properties:
-    props = mi.Properties()
-    props['bsdf'] = bsdf
-    return props
 
 
 def specimen_mesh(rig: Rig) -> trimesh.Trimesh:
@@ -236,21 +232,21 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
     os.makedirs(truth, exist_ok=True)
     container = board_mesh(rig.container, rig.size_mm, rig.pose)
     container_path = os.path.join(truth, 'container.ply')
-    write_container(container, container_path, smooth=rig.container != 'box')
+    write_container(container, container_path, normals=rig.container != 'box')
     specimen = specimen_mesh(rig)
     specimen_path = os.path.join(truth, 'specimen.ply')
     write_object(specimen, specimen_path)
     # Rendered a hair above the paper (CONTACT_GAP), as glass lies on a sheet.
     lifted = os.path.join(truth, '.render_container.ply')
     write_container(board_mesh(rig.container, rig.size_mm, rig.pose, lift=CONTACT_GAP), lifted,
-                    smooth=rig.container != 'box')
+                    normals=rig.container != 'box')
     scene = mi.load_dict({
         'type': 'scene',
         'integrator': {'type': 'path', 'max_depth': rig.max_depth, 'rr_depth': rig.max_depth},
         'tent': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': [rig.ambient] * 3}},
         'board': board_shape(rig),
-        'container': {'type': 'ply', 'filename': lifted,
-                      'bsdf': {'type': 'dielectric', 'int_ior': rig.ior, 'ext_ior': 1.0}},
+        # Shaded with the normals the reneus integrator gives the same file.
+        'container': shading_mesh(lifted, bsdf={'type': 'dielectric', 'int_ior': rig.ior, 'ext_ior': 1.0}),
         'specimen': {'type': 'ply', 'filename': specimen_path,
                      'bsdf': {'type': 'diffuse', 'reflectance': {'type': 'mesh_attribute', 'name': 'vertex_color'}}},
     })
