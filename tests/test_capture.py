@@ -128,14 +128,20 @@ def test_undistortion_inverts_a_known_lens():
     assert np.abs(half - small)[inner].mean() < 0.01
 
 
-def test_nerfstudio_opencv_distortion_is_taken_out(tmp_path):
-    """nerfstudio's camera_model OPENCV with k1..p2: the loader undistorts through the same path."""
+def distorted_photo():
+    """A 160x120 pinhole image (a smooth pattern, one channel) and the photograph (RGB) a
+    strongly distorting lens with an off-centre principal point makes of it."""
     rig = Rig(width=160, height=120, focal_px=150.0, principal_offset_px=(3.0, -2.5),
               distortion=(-0.25, 0.06, 0.002, -0.001, 0.0))
-    K = rig.K()
     ys, xs = np.mgrid[:120, :160] + 0.5
     pinhole = (0.5 + 0.3 * np.sin(2 * np.pi * xs / 16.0) * np.sin(2 * np.pi * ys / 19.0)).astype(np.float32)
-    photo = distort_image(np.repeat(pinhole[..., None], 3, axis=-1), K, rig)
+    return rig, pinhole, distort_image(np.repeat(pinhole[..., None], 3, axis=-1), rig.K(), rig)
+
+
+def test_nerfstudio_opencv_distortion_is_taken_out(tmp_path):
+    """nerfstudio's camera_model OPENCV with k1..p2: the loader undistorts through the same path."""
+    rig, pinhole, photo = distorted_photo()
+    K = rig.K()
     os.makedirs(tmp_path / 'images')
     cv2.imwrite(str(tmp_path / 'images' / 'a.png'), np.round(photo[..., ::-1] * 255).astype(np.uint8))
     k1, k2, p1, p2, _ = rig.distortion
@@ -177,12 +183,8 @@ def test_colmap_model_read_and_undistorted(tmp_path):
     import trimesh
     from reneus_mi.capture import colmap
     from reneus_mi.data.cameras import look_at
-    rig = Rig(width=160, height=120, focal_px=150.0, principal_offset_px=(3.0, -2.5),
-              distortion=(-0.25, 0.06, 0.002, -0.001, 0.0))
+    rig, pinhole, photo = distorted_photo()
     K = rig.K()
-    ys, xs = np.mgrid[:120, :160] + 0.5
-    pinhole = (0.5 + 0.3 * np.sin(2 * np.pi * xs / 16.0) * np.sin(2 * np.pi * ys / 19.0)).astype(np.float32)
-    photo = distort_image(np.repeat(pinhole[..., None], 3, axis=-1), K, rig)
     (tmp_path / 'images').mkdir()
     model = pycolmap.Reconstruction()
     camera = pycolmap.Camera.create_from_model_name(1, 'OPENCV', 150.0, 160, 120)
