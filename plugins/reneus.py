@@ -17,7 +17,7 @@ from reneus_mi.render.optics import interface
 from reneus_mi.render.ray_samplers import SamplerConfig
 from reneus_mi.render.seeds import opaque_seed
 from reneus_mi.render.surroundings import Surroundings
-from reneus_mi.render.volume_rendering import volume_render
+from reneus_mi.render.volume_rendering import gather_subset, volume_render
 
 VARIANT = mi.variant()
 
@@ -48,7 +48,11 @@ class RayTreeResult:
 class StepState:
     """Per-step schedule values of training, handed to the renderer in one place."""
     step: int = 0
-    """The optimisation step (drives the field's and the sampler's own schedules)."""
+    """The optimisation step (the occupancy grid's refreshes count these)."""
+    schedule: int | None = None
+    """Where the schedules stand, in steps (the field's coarse-to-fine levels follow it):
+    the step itself, or under a time budget the share of the budget spent times the
+    planned iterations (None: ``step``)."""
     cos_anneal_ratio: float = 1.0
     """NeuS's cosine annealing ratio in [0, 1]."""
     seed: int | None = None
@@ -222,7 +226,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     def begin_step(self, state: StepState) -> None:
         """Take the schedule values of a training step (the trainer calls this once per step)."""
         self.state = state
-        self.field.set_step(state.step)
+        self.field.set_step(state.step if state.schedule is None else state.schedule)
         self.sampler.update(self.field, state.step)
 
     def render_rays(self, scene: mi.Scene, ray: mi.Ray3f, active: mi.Bool | bool = True) -> RayTreeResult:
@@ -323,7 +327,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         if dr.width(seg) == 0:
             return T
         s = rays.take(seg)
-        t = dr.gather(mi.Float, t_far, seg)
+        t = gather_subset(mi.Float, t_far, seg)
         u = None if jitter is None else dr.gather(mi.Float, jitter, s.camera)
         vr = volume_render(self.field, self.sampler, self.frame.to_field(s.o), s.d,
                            dr.zeros(mi.Float, dr.width(seg)), t / self.frame.scale, jitter=u,
@@ -352,7 +356,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         half = dr.opaque(mi.UInt32, n)
         refracted = j >= half
         lane = dr.select(refracted, j - half, j)
-        β_all = dr.select(refracted, dr.gather(mi.Float, β_t, lane), dr.gather(mi.Float, β_r, lane))
+        β_all = dr.select(refracted, gather_subset(mi.Float, β_t, lane), gather_subset(mi.Float, β_r, lane))
         alive = dr.gather(mi.Bool, hit.valid, lane) & (dr.detach(β_all) > 0.0)
         threshold = self.model.render.rr_threshold
         if threshold > 0.0:
@@ -367,9 +371,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             return rays.take(keep)
         lane = dr.gather(mi.UInt32, lane, keep)
         refracted = dr.gather(mi.Bool, refracted, keep)
-        d = dr.select(refracted, dr.gather(mi.Vector3f, d_t, lane), dr.gather(mi.Vector3f, d_r, lane))
-        o = _offset(dr.gather(mi.Point3f, hit.p, lane), dr.gather(type(hit.n), hit.n, lane), d)
-        return _Rays(o=o, d=d, β=dr.gather(mi.Float, β_all, keep), camera=dr.gather(mi.UInt32, rays.camera, lane))
+        d = dr.select(refracted, gather_subset(mi.Vector3f, d_t, lane), gather_subset(mi.Vector3f, d_r, lane))
+        o = _offset(gather_subset(mi.Point3f, hit.p, lane), gather_subset(type(hit.n), hit.n, lane), d)
+        return _Rays(o=o, d=d, β=gather_subset(mi.Float, β_all, keep),
+                     camera=dr.gather(mi.UInt32, rays.camera, lane))
 
     # ------------------------------------------------------------ the scene
     def bind(self, scene: mi.Scene) -> Surroundings:
@@ -437,8 +442,8 @@ class _Rays:
         return dr.width(self.camera)
 
     def take(self, index: mi.UInt32) -> '_Rays':
-        return _Rays(o=dr.gather(mi.Point3f, self.o, index), d=dr.gather(mi.Vector3f, self.d, index),
-                     β=dr.gather(mi.Float, self.β, index), camera=dr.gather(mi.UInt32, self.camera, index))
+        return _Rays(o=gather_subset(mi.Point3f, self.o, index), d=gather_subset(mi.Vector3f, self.d, index),
+                     β=gather_subset(mi.Float, self.β, index), camera=dr.gather(mi.UInt32, self.camera, index))
 
 
 class _Accumulator:

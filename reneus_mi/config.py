@@ -137,8 +137,11 @@ class TrainConfig:
     iterations: int = 3000
     """Optimisation steps (the paper: 200k on a GPU)."""
     max_minutes: float = 0.0
-    """Wall-clock budget of the training steps in minutes; the run then writes its mesh and
-    stops (0: no budget, train for all iterations)."""
+    """Wall-clock budget of the training in minutes: the run trains until it is spent, then
+    writes its mesh, and the schedules (learning-rate decay, annealing, the field's
+    coarse-to-fine levels, when refinement starts) follow the share of the budget spent,
+    laid over `iterations` steps, so the run ends sharp whatever the machine's speed
+    (0: no budget, train for `iterations` steps)."""
     batch_rays: int = 1024
     """Camera rays per step, drawn at random from the container masks of all views (with a
     sample budget: the first step's)."""

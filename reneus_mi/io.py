@@ -8,6 +8,7 @@ renamed over the target once complete, and removed if the write fails.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 import zipfile
@@ -76,6 +77,21 @@ def atomic_export(mesh, path: str | os.PathLike) -> None:
 def is_temporary(name: str) -> bool:
     """Whether a file name is one of :func:`atomic_path`'s temporaries (left by a kill)."""
     return os.path.basename(name).startswith('.tmp-')
+
+
+def load_json(path: str | os.PathLike, what: str = 'file') -> dict:
+    """A JSON object from ``path``, or one line naming the file and the fault."""
+    path = os.fspath(path)
+    try:
+        with open(path) as f:
+            data = json.load(f)
+    except OSError as e:
+        raise ReneusError(f'{path}: cannot read the {what} ({e.strerror})') from None
+    except ValueError as e:
+        raise ReneusError(f'{path}: {what} is not valid JSON ({e})') from None
+    if not isinstance(data, dict):
+        raise ReneusError(f'{path}: {what}: expected a JSON object')
+    return data
 
 
 def check_npz_file(path: str | os.PathLike, what: str = 'checkpoint', keys=('meta',)) -> None:

@@ -23,6 +23,7 @@ class ParamGroup:
     learning_rate: float
     """Peak learning rate; it follows the run's schedule (warm-up, cosine decay)."""
     start: int = 0
-    """Step from which the group moves; before it, its learning rate is 0."""
+    """Step of the run's schedule (the step, or under a time budget the share of it spent laid
+    over the iterations) from which the group moves; before it, its learning rate is 0."""
     bounds: tuple[float, float] | None = None
     """Interval the values are clipped to after every step (None: unbounded)."""

@@ -1,8 +1,8 @@
 """Shared by every test: the CPU variant, the ``slow`` marker and the fixtures.
 
-Helpers that are not fixtures live beside this file: ``reference.py`` (scenes
-for comparing ``reneus`` with Mitsuba's ``path``) and ``tiny.py`` (the tiny
-dataset and trainers on it).
+Helpers that are not fixtures live beside this file: ``reference.py`` (reference
+scenes and shapes), ``tiny.py`` (the tiny dataset and trainers on it) and
+``capture_data.py`` (the simulated ChArUco capture).
 """
 import os
 import sys
@@ -26,6 +26,14 @@ def scene_xml(tmp_path_factory):
     """The scene XML of the tiny statuette dataset (``tiny.py``), rendered once per session."""
     from tiny import tiny_dataset
     return tiny_dataset(tmp_path_factory.getbasetemp() / 'tiny_statuette')
+
+
+@pytest.fixture(scope='session')
+def simulated_capture(tmp_path_factory):
+    """The simulated capture (``capture_data.py``): ``{'photos', 'truth', 'meta'}``, rendered
+    once per session."""
+    from capture_data import capture
+    return capture(tmp_path_factory.getbasetemp() / 'capture')
 
 
 @pytest.fixture

@@ -9,7 +9,12 @@ Intrinsics are ``camera_angle_x`` (optionally ``camera_angle_y``; principal
 point at the image centre) or ``fl_x``/``fl_y``/``cx``/``cy`` (optionally
 ``w``/``h``), at the top level or per frame (a frame's own value wins). Each
 frame has ``file_path`` (with or without extension, relative to the folder) and
-``transform_matrix``: camera-to-world with OpenGL axes. An image's alpha
+``transform_matrix``: camera-to-world with OpenGL axes. nerfstudio's lens distortion
+(``camera_model: OPENCV`` with ``k1``, ``k2``, ``p1``, ``p2`` and optionally ``k3``, at the
+top level or per frame) is taken out on reading: each image is resampled to the pinhole
+camera of the same intrinsics by :func:`reneus_mi.capture.undistort.undistort`, the one
+undistortion of the package (pixels the photograph does not cover become black and leave
+the mask). Other camera models (fisheye, equirectangular) are refused. An image's alpha
 channel is its container mask; frames without alpha get the container's
 projection. The ReNeuS keys ``IOR``, ``mesh_outside``, ``mesh_inside`` (and
 ``scale_mat``) are described in :mod:`reneus_mi.data.dataset`.
@@ -24,6 +29,7 @@ import os
 
 import numpy as np
 
+from reneus_mi.capture.undistort import DISTORTION_KEYS, distortion, undistort
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_write_text
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
@@ -34,7 +40,10 @@ from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, write_image
 #: Metadata file names, in order of preference.
 TRANSFORMS_FILES = ('transforms.json', 'transforms_train.json')
 
-_INTRINSIC_KEYS = ('camera_angle_x', 'camera_angle_y', 'fl_x', 'fl_y', 'cx', 'cy', 'w', 'h')
+_INTRINSIC_KEYS = ('camera_angle_x', 'camera_angle_y', 'fl_x', 'fl_y', 'cx', 'cy', 'w', 'h',
+                   'camera_model', 'k1', 'k2', 'k3', 'k4', 'p1', 'p2')
+#: nerfstudio's camera models that are pinholes once the OpenCV distortion is taken out.
+_CAMERA_MODELS = ('OPENCV', 'PINHOLE', 'SIMPLE_PINHOLE')
 
 
 def find(root: str) -> str | None:
@@ -82,6 +91,24 @@ def _intrinsics(cam: dict, width: int, height: int, where: str) -> np.ndarray:
     return check_K(intrinsics(fx, fy, cx, cy), where)
 
 
+def _distortion(cam: dict, where: str):
+    """The frame's OpenCV distortion (k1, k2, p1, p2, k3), or None for a pinhole."""
+    model = cam.get('camera_model', 'OPENCV')
+    if model not in _CAMERA_MODELS:
+        raise ReneusError(f"{where}: camera_model {model!r}; expected one of {', '.join(_CAMERA_MODELS)} "
+                          "(undistort fisheye photographs to a pinhole first)")
+    if 'k4' in cam and _number(cam, 'k4', where) != 0.0:
+        raise ReneusError(f"{where}: 'k4' is {cam['k4']}; expected camera_model OPENCV's "
+                          f"{', '.join(DISTORTION_KEYS)} only (k4 belongs to fisheye models)")
+    values = [_number(cam, k, where) if k in cam else 0.0 for k in DISTORTION_KEYS]
+    if not any(values):
+        return None
+    if model != 'OPENCV':
+        raise ReneusError(f"{where}: camera_model {model} with distortion {values}; expected OPENCV "
+                          "for a lens with distortion")
+    return distortion(values, where)
+
+
 def read(path: str, *, need_container: bool = True) -> Dataset:
     """Read the dataset described by the transforms file ``path``."""
     root = os.path.dirname(os.path.abspath(path))
@@ -102,7 +129,14 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
         file = _image_path(root, str(frame['file_path']), where)
         rgb, alpha = read_image(file)
         cam = {**top, **{k: frame[k] for k in _INTRINSIC_KEYS if k in frame}}
-        Ks.append(_intrinsics(cam, rgb.shape[1], rgb.shape[0], where))
+        K = _intrinsics(cam, rgb.shape[1], rgb.shape[0], where)
+        dist = _distortion(cam, where)
+        if dist is not None:
+            size = (rgb.shape[1], rgb.shape[0])
+            rgb, covered = undistort(rgb, K, dist, K, size)
+            if alpha is not None:
+                alpha = undistort(alpha, K, dist, K, size)[0] * covered
+        Ks.append(K)
         try:
             gl = np.asarray(frame['transform_matrix'], dtype=np.float64)
         except (TypeError, ValueError):

@@ -9,7 +9,9 @@ neither format has a field for are stored under the same JSON keys in both:
   coordinates), a path relative to the dataset folder;
 - ``"mesh_inside"``: the ground-truth object mesh, same rules;
 - ``"scale_mat"``: (Blender format only, written by reneus-mi) NeuS's 4x4
-  normalisation matrix, so that a NeuS dataset survives a round trip.
+  normalisation matrix, so that a NeuS dataset survives a round trip;
+- ``"ambient"``: the ambient light C_out measured with the photographs (linear, one number
+  or RGB), which the scene writer then uses (``reneus_mi.capture`` writes it).
 """
 from __future__ import annotations
 
@@ -53,6 +55,8 @@ class Dataset:
     gt_mesh: str | None = None
     #: NeuS normalisation (unit sphere -> world), if the data has one.
     scale_mat: np.ndarray | None = None
+    #: The ambient light C_out (linear RGB), if the dataset measured it.
+    ambient: np.ndarray | None = None
     #: Whether the masks were read from files (segmented photographs) rather than projected
     #: from the container mesh: only such masks say where the container really is.
     masks_measured: bool = False
@@ -168,6 +172,13 @@ def read_extras(meta: dict, root: str, where: str) -> dict:
         if scale_mat.shape != (4, 4):
             raise ReneusError(f"{where}: 'scale_mat' must be a 4x4 matrix, got {meta['scale_mat']!r}")
         out['scale_mat'] = scale_mat
+    if meta.get('ambient') is not None:
+        ambient = np.broadcast_to(np.asarray(meta['ambient'], dtype=np.float64), (3,)) \
+            if np.size(meta['ambient']) in (1, 3) else None
+        if ambient is None or not np.all(np.isfinite(ambient)) or not np.all(ambient > 0):
+            raise ReneusError(f"{where}: 'ambient' is {meta['ambient']!r}; expected a positive radiance "
+                              "(one number or RGB)")
+        out['ambient'] = ambient.copy()
     return out
 
 
@@ -176,6 +187,8 @@ def write_extras(ds: Dataset, out_dir: str) -> dict:
     meta = {}
     if ds.ior is not None:
         meta['IOR'] = float(ds.ior)
+    if ds.ambient is not None:
+        meta['ambient'] = np.asarray(ds.ambient, np.float64).tolist()
     for key, path, stem in (('mesh_outside', ds.container, 'container'),
                             ('mesh_inside', ds.gt_mesh, 'gt_mesh')):
         if path is None:
@@ -207,7 +220,8 @@ def check_writable(ds: Dataset, out_dir: str) -> None:
 def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.ndarray,
              c2w: np.ndarray, names: list[str], files: list[str], root: str, meta_file: str,
              need_container: bool, container: str | None = None, ior: float | None = None,
-             gt_mesh: str | None = None, scale_mat: np.ndarray | None = None) -> Dataset:
+             gt_mesh: str | None = None, scale_mat: np.ndarray | None = None,
+             ambient: np.ndarray | None = None) -> Dataset:
     """Check what a reader found and build the :class:`Dataset`.
 
     ``files`` are the image paths (for messages); ``masks`` may hold None for
@@ -241,6 +255,6 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
     ds = Dataset(images=np.stack(images).astype(np.float32), masks=np.stack(masks),
                  K=np.asarray(K, np.float64), c2w=np.asarray(c2w, np.float64), names=list(names),
                  root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat,
-                 masks_measured=not missing)
+                 ambient=ambient, masks_measured=not missing)
     ds.validate()
     return ds

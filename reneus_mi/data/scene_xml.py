@@ -3,7 +3,8 @@
 :func:`write_scene` writes an XML file (format version 3.0.0) that
 ``mi.load_file`` reads: the container mesh (if the dataset has one) as a smooth ``dielectric``
 (``int_ior`` from the dataset, else 1.45 like the paper's synthetic data), the
-paper's homogeneous ambient light (a ``constant`` emitter of radiance 0.8), a
+paper's homogeneous ambient light (a ``constant`` emitter: the dataset's measured
+``ambient`` if it has one, else the paper's 0.8), a
 ``perspective`` sensor reproducing the first view's pixel rays, and the
 integrator. For the ``reneus`` integrator it also names the dataset and the
 sphere the field lives in (``field_center``, ``field_scale``, see
@@ -94,7 +95,7 @@ def _relative(path: str, xml_dir: str) -> str:
         return os.path.abspath(path)
 
 
-def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient: float = AMBIENT_RADIANCE,
+def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient: float | None = None,
               container: str | None = None, **integrator_settings) -> ET.ElementTree:
     """Build the scene of :func:`write_scene`; file paths relative to ``xml_dir``.
 
@@ -136,8 +137,10 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
     ET.SubElement(film, 'string', name='pixel_format', value='rgb')
     ET.SubElement(film, 'rfilter', type='box')
 
+    if ambient is None:
+        ambient = ds.ambient if ds.ambient is not None else AMBIENT_RADIANCE
     emitter = ET.SubElement(scene, 'emitter', type='constant')
-    ET.SubElement(emitter, 'rgb', name='radiance', value=_num(ambient))
+    ET.SubElement(emitter, 'rgb', name='radiance', value=', '.join(map(_num, np.broadcast_to(ambient, (3,)))))
 
     if container is not None:
         shape = ET.SubElement(scene, 'shape', type=shape_type, id='container')
@@ -152,9 +155,10 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
     return tree
 
 
-def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: float = AMBIENT_RADIANCE,
+def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: float | None = None,
                 overwrite: bool = False, **integrator_settings) -> None:
-    """Write the Mitsuba 3 scene XML of ``ds`` to ``path``, lit by a constant ``ambient``.
+    """Write the Mitsuba 3 scene XML of ``ds`` to ``path``, lit by a constant ``ambient``
+    (default: the dataset's measured one, else :data:`AMBIENT_RADIANCE`).
 
     ``integrator_settings`` become properties of the integrator, typed by
     their Python type (bool, int, float, str). A dataset without a container

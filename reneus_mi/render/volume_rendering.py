@@ -61,6 +61,17 @@ def _check_widths(**arrays) -> int:
     return n_rays
 
 
+def gather_subset(cls, source, index: mi.UInt32, active=True):
+    """``dr.gather`` of ``index`` picking few lanes per element of ``source``, an array whose
+    width changes from step to step (live rays, inside segments).
+
+    Its reverse mode is an atomic scatter-add into ``source``'s gradient. Left to choose,
+    Dr.Jit's LLVM backend would expand that target per thread and compile the array's
+    width into the kernel: every new width compiled anew (seconds) once a refined IOR or
+    pose sends gradients through the ray tree."""
+    return dr.gather(cls, source, index, active, mode=dr.ReduceMode.Direct)
+
+
 def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float,
                   t_far: mi.Float, *, jitter: mi.Float | None = None, cos_anneal_ratio: float = 1.0) -> VolumeResult:
     """Volume render the segments ``o + t d``, ``t ∈ [t_near, t_far]``, through ``field``.
@@ -84,8 +95,8 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
     if keep is None:
         return _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio)
     n_kept = dr.width(keep)
-    r = _render(field, sampler, dr.gather(mi.Point3f, o, keep), dr.gather(mi.Vector3f, d, keep),
-                segments.t_near, segments.t_far, None if jitter is None else dr.gather(mi.Float, jitter, keep),
+    r = _render(field, sampler, gather_subset(mi.Point3f, o, keep), gather_subset(mi.Vector3f, d, keep),
+                segments.t_near, segments.t_far, None if jitter is None else gather_subset(mi.Float, jitter, keep),
                 cos_anneal_ratio)
     if n_kept == n_rays:
         return r
@@ -101,10 +112,11 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
                         eikonal=spread(mi.Float, r.eikonal, 0.0), n_samples=spread(mi.UInt32, r.n_samples, 0))
 
 
-def _stretch(t: mi.Float, t_near: mi.Float, t_far: mi.Float, ray: mi.UInt32) -> mi.Float:
-    """Sample positions as fixed fractions of their segment: the same values, but they follow
-    the segment's ends when these move (the glass's IOR and pose move where segments end)."""
-    near, far = dr.gather(mi.Float, t_near, ray), dr.gather(mi.Float, t_far, ray)
+def _stretch(t: mi.Float, t_near: mi.Float, t_far: mi.Float, n: int) -> mi.Float:
+    """Sample positions as fixed fractions of their segment (``n`` per segment): the same
+    values, but they follow the segment's ends when these move (the glass's IOR and pose
+    move where segments end)."""
+    near, far = dr.repeat(t_near, n), dr.repeat(t_far, n)
     if not (dr.grad_enabled(near) or dr.grad_enabled(far)):
         return t
     length = dr.detach(far) - dr.detach(near)
@@ -122,12 +134,13 @@ def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio) -> Vo
 
     t, n_t = sampler.sample(field, o, d, t_near, t_far, jitter)
     ray, i = segment_layout(n_rays, n)
-    lo = _stretch(dr.gather(mi.Float, t, ray * n_t + i), t_near, t_far, ray)
-    hi = _stretch(dr.gather(mi.Float, t, ray * n_t + i + 1), t_near, t_far, ray)
+    lo = _stretch(dr.gather(mi.Float, t, ray * n_t + i), t_near, t_far, n)
+    hi = _stretch(dr.gather(mi.Float, t, ray * n_t + i + 1), t_near, t_far, n)
     dist = hi - lo
     t_mid = 0.5 * (lo + hi)
-    d_s = dr.gather(mi.Vector3f, d, ray)
-    x = dr.gather(mi.Point3f, o, ray) + d_s * t_mid
+    # repeat, not a gather by ray: its reverse mode is a block sum, no atomics.
+    d_s = dr.repeat(d, n)
+    x = dr.repeat(o, n) + d_s * t_mid
 
     sdf, grad, feature = field.gradient(x)
     # The floor keeps normalisation and |∇g| differentiable where ∇g vanishes.

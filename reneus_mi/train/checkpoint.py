@@ -3,7 +3,7 @@
 One ``.npz`` holds the field (as ``Field.save``: ``load_field`` reads a
 checkpoint too), Adam's moments and step counts under the integrator's parameter
 names, the refined IOR, pose and light, the loss scaler's scale (CUDA), and a JSON ``meta``: the iteration, the
-lowest loss seen, the field's frame and the container mesh. Random numbers
+lowest loss seen, the seconds trained (a time budget's share spent), the field's frame and the container mesh. Random numbers
 depend only on (seed, step), so no generator state is needed. It is written
 to a temporary file and renamed, so a kill never leaves a torn checkpoint.
 """
@@ -22,7 +22,7 @@ from reneus_mi.io import atomic_savez
 
 def save(path: str, field: Field, opt, names: dict[str, str], *, iteration: int, best_loss: float,
          frame: FieldFrame, container: str | None, scaler=None, surroundings: dict | None = None,
-         batch: int | None = None) -> None:
+         batch: int | None = None, elapsed: float = 0.0) -> None:
     """``names`` maps the optimiser's keys to the integrator's parameter names; ``surroundings``
     holds the IOR, pose and light arrays (:meth:`Surroundings.params`)."""
     arrays = field.arrays()
@@ -37,7 +37,7 @@ def save(path: str, field: Field, opt, names: dict[str, str], *, iteration: int,
         arrays['scaler/scale'] = np.asarray(scaler.scale_factor, dtype=np.float32).ravel()
         arrays['scaler/it'] = np.array([scaler.it], dtype=np.int64)
     meta = {'iteration': iteration, 'best_loss': best_loss, 'frame': frame.to_dict(),
-            'container': container, 'batch': batch}
+            'container': container, 'batch': batch, 'elapsed': elapsed}
     atomic_savez(path, meta=np.array(json.dumps(meta)), **arrays)
 
 

@@ -145,6 +145,8 @@ class Trainer:
                 from reneus_mi.train.silhouette import SilhouetteLoss
                 self.silhouette = SilhouetteLoss(dataset, self.surroundings.mesh())
         self.iteration = 0
+        #: Seconds of training so far (over resumes): how much of a time budget is spent.
+        self.elapsed = 0.0
         self.best_loss = float('inf')
         self.batch = cfg.batch_rays
         self._setup_optimizer()
@@ -194,7 +196,8 @@ class Trainer:
     def save_checkpoint(self) -> None:
         checkpoint.save(self.checkpoint_path, self.field, self.opt, self.names, iteration=self.iteration,
                         best_loss=self.best_loss, frame=self.frame, container=self.container,
-                        scaler=self.scaler, surroundings=self.surroundings.params(), batch=self.batch)
+                        scaler=self.scaler, surroundings=self.surroundings.params(), batch=self.batch,
+                        elapsed=self.elapsed)
 
     def resume(self) -> None:
         """Continue from the output folder's checkpoint, exactly where it was written."""
@@ -206,17 +209,31 @@ class Trainer:
         self._setup_optimizer()
         meta = checkpoint.restore(path, self.opt, self.names, self.scaler)
         self.iteration = meta['iteration']
+        self.elapsed = meta.get('elapsed', 0.0)
         self.best_loss = meta['best_loss']
         self.batch = meta.get('batch', self.cfg.batch_rays)
         self.folder.repair_log(self.iteration)
 
     # ------------------------------------------------------------- training
+    @property
+    def budget(self) -> float:
+        """The time budget in seconds (inf: none)."""
+        return self.cfg.max_minutes * 60.0 if self.cfg.max_minutes > 0 else float('inf')
+
+    def schedule_step(self) -> int:
+        """Where the schedules stand: the step, or under a time budget the share of it
+        spent laid over the planned iterations (a 10-minute run decays and sharpens over
+        its 10 minutes, however many steps the machine makes of them)."""
+        if self.budget == float('inf'):
+            return self.iteration
+        return min(int(self.elapsed / self.budget * self.cfg.iterations), self.cfg.iterations)
+
     def step(self) -> StepStats:
         """One optimisation step; raises TrainingError before a bad update is applied."""
         from reneus_mi.plugins.reneus import StepState
-        cfg, it = self.cfg, self.iteration
+        cfg, it, s = self.cfg, self.iteration, self.schedule_step()
         start = time.perf_counter()
-        self.integrator.begin_step(StepState(step=it, cos_anneal_ratio=cfg.cos_anneal_ratio(it),
+        self.integrator.begin_step(StepState(step=it, schedule=s, cos_anneal_ratio=cfg.cos_anneal_ratio(s),
                                              seed=step_seed(cfg.seed, it, JITTER)))
         batch = self.batch
         ray, target = self.pixels.batch(it, batch)
@@ -241,9 +258,9 @@ class Trainer:
             if not bool(ok[0]):
                 raise TrainingError(f'step {it}: the gradient of {key!r} is not finite; stopped '
                                     f'before updating, the last checkpoint ({self.checkpoint_path}) is intact')
-        lr = cfg.learning_rate_at(it)
+        lr = cfg.learning_rate_at(s)
         # Every group follows the run's schedule at its own peak rate, from its start step.
-        self.opt.set_learning_rate({self.keys[name]: 0.0 if it < group.start else
+        self.opt.set_learning_rate({self.keys[name]: 0.0 if s < group.start else
                                     lr * (group.learning_rate / cfg.learning_rate)
                                     for group in self.groups for name in group.keys})
         if self.scaler:
@@ -324,23 +341,26 @@ class Trainer:
 
     # ----------------------------------------------------------------- loop
     def run(self, progress: bool = True) -> dict:
-        """Train to ``cfg.iterations`` (or the time budget), checkpointing and validating on the way."""
+        """Train to ``cfg.iterations`` (or through the time budget), checkpointing and validating
+        on the way."""
         from tqdm import tqdm
         cfg = self.cfg
         os.makedirs(self.folder.path, exist_ok=True)
         start, psnrs = time.perf_counter(), []
-        budget = cfg.max_minutes * 60.0 if cfg.max_minutes > 0 else float('inf')
-        bar = tqdm(total=cfg.iterations, initial=self.iteration, disable=not progress,
+        timed = self.budget != float('inf')
+        bar = tqdm(total=cfg.iterations, initial=self.iteration, disable=not progress or timed,
                    unit='it', dynamic_ncols=True)
         try:
             with open(self.folder.log, 'a') as log, _deferred_interrupt() as interrupted:
-                while self.iteration < cfg.iterations and time.perf_counter() - start < budget:
+                while self.elapsed < self.budget if timed else self.iteration < cfg.iterations:
                     if interrupted():
                         raise KeyboardInterrupt
+                    turn = time.perf_counter()
                     stats = self.step()
                     psnrs = (psnrs + [stats.psnr])[-100:]
                     if self.iteration % cfg.log_every == 0:
-                        log.write(json.dumps({'iteration': self.iteration, **stats.record(),
+                        log.write(json.dumps({'iteration': self.iteration, 'schedule': self.schedule_step(),
+                                              **stats.record(),
                                               **self.refined_values()}) + '\n')
                         log.flush()
                     bar.update(1)
@@ -350,6 +370,7 @@ class Trainer:
                         self.save_checkpoint()
                     if cfg.validate_every and self.iteration % cfg.validate_every == 0:
                         self.validate()
+                    self.elapsed += time.perf_counter() - turn
         except KeyboardInterrupt:
             self.save_checkpoint()
             bar.close()
@@ -359,7 +380,7 @@ class Trainer:
         mesh_path = self.folder.mesh
         result = {'iterations': self.iteration, 'seconds': time.perf_counter() - start,
                   'psnr': float(np.mean(psnrs)) if psnrs else float('nan'), 'mesh': mesh_path,
-                  'stopped_by_budget': self.iteration < cfg.iterations}
+                  'stopped_by_budget': timed}
         if self.refined:
             result['refined'] = self.refined_values()
         if cfg.refine.pose:

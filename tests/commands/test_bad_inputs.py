@@ -27,6 +27,7 @@ import pytest
 import trimesh
 
 from reneus_mi import evaluate, extract, optimize, scene, synth
+from reneus_mi.capture import colmap as capture_colmap, command as capture
 from reneus_mi.render import __main__ as render
 from tiny import assert_same_state, new_trainer, train_state
 
@@ -597,6 +598,129 @@ def test_synth_refuses(tmp_path, args, parts):
     refused(synth.main, [args[0], '-o', tmp_path / 'out', *args[1:]], *parts, watch=[tmp_path])
 
 
+# =================================================================== capture
+#: The simulated capture's settings as flags (the copies below have no capture.json).
+CAPTURE = ['--squares', '12x9', '--square-mm', 20, '--marker-mm', 15, '--size-mm', '50x35x25', '--ior', 1.5]
+
+
+@pytest.fixture(scope='module')
+def shots(simulated_capture):
+    """The simulated capture's photographs (rendered once per session)."""
+    return simulated_capture['photos']
+
+
+def photo_copies(shots, folder, n, *, blank=0, settings=False):
+    """The first ``n`` photographs (and ``blank`` grey ones) in a new folder."""
+    folder.mkdir()
+    names = sorted(f for f in os.listdir(shots) if f.endswith('.jpg'))[:n]
+    for name in names:
+        shutil.copy(os.path.join(shots, name), folder / name)
+    for i in range(blank):
+        import cv2
+        cv2.imwrite(str(folder / f'blank_{i}.jpg'), np.full((480, 640, 3), 128, np.uint8))
+    if settings:
+        shutil.copy(os.path.join(shots, 'capture.json'), folder / 'capture.json')
+    return folder
+
+
+@pytest.mark.parametrize('flags, parts', [
+    (['--dictionary', 'DICT_5X5_100'], ['no ArUco marker of DICT_5X5_100', 'shows markers of DICT_4X4', '--dictionary']),
+    (['--squares', '10x8'], ['marker id', 'a 10x8 board has ids 0-39', '--squares']),
+    (['--squares', '14x10'], ['do not lie where a 14x10 squares', '--squares']),
+    (['--marker-mm', 25], ['marker_mm=25 and square_mm=20 contradict each other']),
+    (['--size-mm', '300x35x25'], ['size_mm=300x35x25 and the board (240x180 mm', 'contradict each other']),
+    (['--container', 'cylinder'], ['size_mm=50x35x25 for a cylinder', 'diameter x diameter x height']),
+    (['--max-size', 320, '--downscale', 2], ['max_size=320 and downscale=2 both given']),
+    (['--dictionary', 'DICT_9X9_1'], ["dictionary='DICT_9X9_1'", 'expected an OpenCV ArUco dictionary']),
+    (['--squares', '12x9x3'], ["squares='12x9x3'", 'expected 2 numbers like 12x9']),
+], ids=['wrong_dictionary', 'fewer_squares', 'other_layout', 'marker_larger_than_square',
+        'container_larger_than_board', 'cylinder_of_two_diameters', 'two_scalings', 'unknown_dictionary',
+        'three_numbers'])
+def test_capture_refuses(shots, tmp_path, flags, parts):
+    photos = photo_copies(shots, tmp_path / 'photos', 3)
+    given = dict(zip(CAPTURE[::2], CAPTURE[1::2]))
+    given.update(dict(zip(flags[::2], flags[1::2])))
+    argv = [photos, '-o', tmp_path / 'out', *[x for kv in given.items() for x in kv]]
+    refused(capture.main, argv, *parts, watch=[tmp_path])
+
+
+def test_capture_no_board_in_any_photograph(shots, tmp_path):
+    photos = photo_copies(shots, tmp_path / 'photos', 0, blank=3)
+    refused(capture.main, [photos, '-o', tmp_path / 'out', *CAPTURE],
+            'no ArUco marker of DICT_4X4_100 in any of the 3 photographs', 'check --dictionary',
+            watch=[tmp_path])
+
+
+def test_capture_flag_contradicts_the_capture_file(shots, tmp_path):
+    photos = photo_copies(shots, tmp_path / 'photos', 3, settings=True)
+    refused(capture.main, [photos, '-o', tmp_path / 'out', '--size-mm', '50x35x20'],
+            '--size-mm 50x35x20 contradicts', 'capture.json', watch=[tmp_path])
+
+
+def test_capture_beyond_memory_names_the_flags(shots, tmp_path, monkeypatch):
+    from reneus_mi import limits
+    monkeypatch.setattr(limits, 'physical_memory', lambda: 2**20)
+    photos = photo_copies(shots, tmp_path / 'photos', 3)
+    refused(capture.main, [photos, '-o', tmp_path / 'out', *CAPTURE],
+            '3 photographs of 640x480', 'needs about', '--max-size N or --downscale F', watch=[tmp_path])
+
+
+def test_capture_photograph_without_corners_is_left_out(shots, tmp_path):
+    """One warning line naming the photograph; the others go on."""
+    from reneus_mi.capture.board import Board
+    photos = photo_copies(shots, tmp_path / 'photos', 2, blank=1)
+    files = sorted(str(p) for p in photos.iterdir())
+    with pytest.warns(UserWarning) as caught:
+        detections, size = capture.detect_all(Board(12, 9, 20.0, 15.0), files)
+    messages = [str(w.message) for w in caught]
+    assert messages == ['blank_0.jpg: left out: no board corners found (is the board in the picture, '
+                        'sharp and not too oblique?)']
+    assert sorted(detections) == sorted(f for f in os.listdir(photos) if f.startswith('IMG')) and size == (640, 480)
+
+
+def test_capture_container_not_found_writes_the_overlays(shots, tmp_path):
+    """A container stated 80 mm tall (it is 25): refused, with the overlays there to see why."""
+    photos = photo_copies(shots, tmp_path / 'photos', 6)
+    given = [x if x != '50x35x25' else '50x35x80' for x in CAPTURE]
+    refused(capture.main, [photos, '-o', tmp_path / 'out', *given, '--max-size', 320],
+            'container not found', 'check --size-mm', 'overlays in', watch=[photos])
+    assert len(os.listdir(tmp_path / 'out' / 'overlays')) == 6
+    assert not os.path.exists(tmp_path / 'out' / 'transforms.json')
+
+
+@pytest.mark.parametrize('model, params, parts', [
+    ('OPENCV_FISHEYE', [100.0, 100.0, 32.0, 24.0, 0.1, 0.0, 0.0, 0.0], ['camera model OPENCV_FISHEYE', 'expected SIMPLE_PINHOLE']),
+    ('FULL_OPENCV', [100.0, 100.0, 32.0, 24.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 0.0], ['rational terms k4-k6']),
+], ids=['fisheye', 'rational'])
+def test_colmap_camera_models_refused(tmp_path, model, params, parts):
+    pycolmap = pytest.importorskip('pycolmap')
+    import cv2
+    (tmp_path / 'images').mkdir()
+    cv2.imwrite(str(tmp_path / 'images' / 'a.png'), np.zeros((48, 64, 3), np.uint8))
+    rec = pycolmap.Reconstruction()
+    camera = pycolmap.Camera.create_from_model_name(1, model, 100.0, 64, 48)
+    camera.params = params
+    rec.add_camera_with_trivial_rig(camera)
+    pose = pycolmap.Rigid3d(pycolmap.Rotation3d(np.eye(3)), np.array([0.0, 0.0, 5.0]))
+    rec.add_image_with_trivial_frame(pycolmap.Image(name='a.png', camera_id=1, image_id=1), pose)
+    (tmp_path / 'sparse').mkdir()
+    rec.write_text(str(tmp_path / 'sparse'))
+    trimesh.creation.box(extents=(1.0, 1.0, 1.0)).export(tmp_path / 'box.ply')
+    refused(capture_colmap.main, [tmp_path / 'sparse', '--images', tmp_path / 'images', '--container',
+                                  tmp_path / 'box.ply', '--ior', 1.5, '-o', tmp_path / 'out'], *parts,
+            watch=[tmp_path])
+
+
+@pytest.mark.parametrize('edit, parts', [
+    ({'camera_model': 'OPENCV_FISHEYE'}, ["camera_model 'OPENCV_FISHEYE'", 'expected one of OPENCV']),
+    ({'camera_model': 'OPENCV', 'k1': 0.1, 'k4': 0.2}, ["'k4' is 0.2", 'fisheye']),
+    ({'camera_model': 'PINHOLE', 'k1': 0.1}, ['camera_model PINHOLE with distortion', 'expected OPENCV']),
+], ids=['fisheye', 'k4', 'pinhole_with_distortion'])
+def test_optimize_nerfstudio_lens_refused(world, data, tmp_path, edit, parts):
+    edit_frames(data, lambda meta: meta.update(edit))
+    refused(optimize.main, train(world, data, tmp_path), *parts, watch=[data, tmp_path])
+
+
 # =========================================================== real processes
 def test_processes_exit_1_with_one_line(world, tmp_path):
     """The interpreter's own exit: status 1, one stderr line, no traceback, nothing written."""
@@ -607,6 +731,7 @@ def test_processes_exit_1_with_one_line(world, tmp_path):
                            '--resolution', 100000), '32-bit')
     one_error_line(process('synth', 'sphere', '-o', world['data']), 'dataset folder')
     one_error_line(process('render', world['scene'], '-o', tmp_path / 'r.jpg'), '.exr or .png')
+    one_error_line(process('capture', world['data'], '-o', tmp_path / 'out', *CAPTURE), 'no photographs')
     assert snapshot(world['data'], world['run']) == before
     assert os.listdir(tmp_path) == []
 

@@ -193,3 +193,24 @@ def test_loss_scaler_state_survives_a_checkpoint(scene_xml, tmp_path):
     resumed.scaler = GradScaler(init_scale=mi.Float(2.0 ** 16))
     checkpoint.restore(resumed.checkpoint_path, resumed.opt, resumed.names, resumed.scaler)
     assert float(resumed.scaler.scale_factor[0]) == 1024.0 and resumed.scaler.it == 7
+
+
+def test_time_budget_shapes_the_schedules(scene_xml, tmp_path):
+    # Under a budget the schedules follow the share of it spent, laid over the planned
+    # iterations: half the budget spent is the middle of the learning-rate decay and of
+    # the annealing, whatever step the run is at.
+    trainer = new_trainer(scene_xml, tmp_path / 'run', iterations=400, max_minutes=1.0, warm_up=10,
+                          anneal_end=400)
+    assert trainer.schedule_step() == 0
+    trainer.elapsed = 30.0
+    stats = trainer.step()
+    cfg = trainer.cfg
+    assert trainer.iteration == 1 and trainer.integrator.state.schedule == 200
+    assert stats.learning_rate == pytest.approx(cfg.learning_rate_at(200))
+    assert trainer.integrator.state.cos_anneal_ratio == pytest.approx(0.5)
+    trainer.elapsed = 120.0
+    assert trainer.schedule_step() == 400
+    # Without a budget the schedule is the step.
+    plain = new_trainer(scene_xml, tmp_path / 'plain', iterations=400)
+    plain.elapsed = 30.0
+    assert plain.schedule_step() == 0

@@ -1,0 +1,348 @@
+"""Reconstruction quality on another renderer's photographs, through the README's commands.
+
+    python bench/quality.py [--data /work/data/blender_set] [--scenes stool knot]
+                            [--variants box nobox] [--configs fast:2,5,10 small:10]
+                            [--runs runs/quality] [--doc docs] [--fresh]
+
+The data are the Blender Cycles set of ``bench/blender_set.py`` (``DATA/SCENE/box/``,
+``nobox/``, the ground truth ``DATA/SCENE/gt.ply`` outside both). For each scene, variant
+and configuration (a preset and a time budget in minutes) it runs, as a user would, in
+subprocesses::
+
+    python -m reneus_mi.scene DATA/SCENE/VARIANT -o RUNS/SCENE/VARIANT/scene_PRESET.xml --preset PRESET
+        [--set model.render.mode=neus: for a dataset without a container, which optimize refuses otherwise]
+    python -m reneus_mi.optimize scene_PRESET.xml -o RUN --max-minutes M --quiet
+    python -m reneus_mi.evaluate RUN/mesh.ply DATA/SCENE/gt.ply --json RUN/evaluate.json [--postprocess P]
+
+and records Chamfer-L1 x100 of the run's mesh as the run cleaned it (``--postprocess none``;
+another rule of evaluate's with ``--postprocess``) and the connected components of the run's ``mesh.ply`` as the run wrote it
+(:func:`reneus_mi.geometry.surface.components`). Every budget is a separate run. It writes ``DOC/quality.md`` (one table per scene, the command, the date, the
+machine's load) and ``DOC/quality/SCENE_VARIANT_PRESET_Mmin.png``: the mesh beside the
+ground truth, rendered by Mitsuba from the same camera. A run that fails or is skipped is
+a row with its reason. Finished runs (an ``evaluate.json``) are read back, so a killed
+benchmark continues where it stopped; ``--fresh`` runs everything again. A smoke run:
+``--scenes stool --configs fast:0.3 --doc /tmp/quality``.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..'))
+
+#: The benchmark: presets and their budgets in minutes.
+CONFIGS = ('fast:2,5,10', 'small:10')
+#: The acceptance rule of issue 15: fast with the block against fast without it, at 10 minutes.
+CRITERION = {'preset': 'fast', 'minutes': 10.0, 'ratio': 1.5, 'components': 5}
+#: Side of each half of a picture, pixels.
+PICTURE = 160
+#: Extra wall-clock time a run may take beyond its budget (kernel compilation, mesh
+#: extraction) before it counts as hung.
+GRACE_S = 900
+
+
+def parse_configs(items) -> list[tuple[str, float]]:
+    """``['fast:2,5', 'small:10']`` -> ``[('fast', 2.0), ('fast', 5.0), ('small', 10.0)]``."""
+    out = []
+    for item in items:
+        preset, sep, minutes = item.partition(':')
+        try:
+            values = [float(m) for m in minutes.split(',')] if sep else []
+        except ValueError:
+            values = []
+        if not preset or not values or any(not m > 0 for m in values):
+            raise SystemExit(f'error: --configs {item!r}: expected PRESET:MINUTES[,MINUTES...], '
+                             'e.g. fast:2,5,10')
+        out += [(preset, m) for m in values]
+    return out
+
+
+def _tag(preset: str, minutes: float) -> str:
+    return f'{preset}_{minutes:g}min'
+
+
+def _run(cmd: list[str], log, timeout: float) -> str | None:
+    """Run ``cmd``, appending its output to ``log``; None when it succeeded, else the reason
+    (its last ``error:`` line, or its last line)."""
+    log.write(f'$ {shlex.join(cmd)}\n')
+    log.flush()
+    try:
+        proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                              text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return f'{cmd[2]}: ran past {timeout / 60:.0f} min'
+    log.write(proc.stdout)
+    log.flush()
+    if proc.returncode == 0:
+        return None
+    lines = [ln.strip() for ln in proc.stdout.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if ln.startswith('error:')]
+    reason = (errors or lines or [f'exit status {proc.returncode}'])[-1]
+    return f'{cmd[2]}: {reason}'
+
+
+def count_components(mesh_path: str) -> int:
+    """Connected pieces of the run's mesh as it wrote it (0 when it holds no surface)."""
+    from reneus_mi.errors import ReneusError
+    from reneus_mi.geometry.mesh import load_mesh
+    from reneus_mi.geometry.surface import components
+    try:
+        return components(load_mesh(mesh_path))
+    except ReneusError:
+        return 0
+
+
+def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str, minutes: float,
+            fresh: bool, postprocess: str | None) -> dict:
+    """One row: scene file, run, evaluation (or the reason there is none)."""
+    row = {'scene': scene, 'variant': variant, 'preset': preset, 'minutes': minutes}
+    folder = os.path.join(runs, scene, variant)
+    run = os.path.join(folder, _tag(preset, minutes))
+    evaluation = os.path.join(run, 'evaluate.json')
+    row['run'] = run
+    if not os.path.isfile(os.path.join(data, 'transforms.json')):
+        return {**row, 'status': f'skipped: no dataset at {data}'}
+    if not os.path.isfile(gt):
+        return {**row, 'status': f'skipped: no ground truth at {gt}'}
+    if os.path.isfile(evaluation) and not fresh:
+        return {**row, **_read(run, evaluation), 'reused': True}
+    if os.path.exists(run):
+        # A run of this benchmark that did not finish (or --fresh): its folder is ours.
+        shutil.rmtree(run)
+    os.makedirs(folder, exist_ok=True)
+    xml = os.path.join(folder, f'scene_{preset}.xml')
+    with open(os.path.join(data, 'transforms.json')) as f:
+        # Without a container the README's path is NeuS's (optimize says so when it is not).
+        neus = [] if json.load(f).get('mesh_outside') else ['--set', 'model.render.mode=neus']
+    py = sys.executable
+    with open(os.path.join(folder, f'{_tag(preset, minutes)}.log'), 'w') as log:
+        steps = [[py, '-m', 'reneus_mi.scene', data, '-o', xml, '--preset', preset, *neus, '--overwrite'],
+                 [py, '-m', 'reneus_mi.optimize', xml, '-o', run, '--max-minutes', f'{minutes:g}', '--quiet'],
+                 [py, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation,
+                  *(['--postprocess', postprocess] if postprocess else [])]]
+        timeouts = [GRACE_S, 60 * minutes + GRACE_S, GRACE_S]
+        start = time.perf_counter()
+        for cmd, timeout in zip(steps, timeouts):
+            failure = _run(cmd, log, timeout)
+            if failure:
+                row['status'] = f'failed: {failure}'
+                break
+        row['wall_s'] = time.perf_counter() - start
+    if 'status' in row:
+        return {**row, **_read(run, None)}
+    return {**row, **_read(run, evaluation)}
+
+
+def _read(run: str, evaluation: str | None) -> dict:
+    """What a run folder tells: steps, PSNR, Chamfer and components."""
+    out = {}
+    result = os.path.join(run, 'result.json')
+    if os.path.isfile(result):
+        with open(result) as f:
+            r = json.load(f)
+        out.update(steps=r.get('iterations'), train_s=r.get('seconds'), psnr=r.get('psnr'))
+    mesh = os.path.join(run, 'mesh.ply')
+    if evaluation:
+        with open(evaluation) as f:
+            e = json.load(f)
+        out.update(chamfer=e['chamfer'], fscore=e.get('fscore'), postprocess=e.get('postprocess'),
+                   status='ok')
+    if os.path.isfile(mesh):
+        # Not evaluate's 'components': it counts after its clean-up (one, for 'largest').
+        out['components'] = count_components(mesh)
+    return out
+
+
+# --- pictures -------------------------------------------------------------------------------
+
+def _look_at(eye, target) -> np.ndarray:
+    import mitsuba as mi
+    return mi.ScalarTransform4f().look_at(origin=list(map(float, eye)), target=list(map(float, target)),
+                                         up=[0.0, 0.0, 1.0])
+
+
+def picture(mesh_path: str, gt_path: str, out: str) -> None:
+    """The mesh (left) beside the ground truth (right), grey, from one oblique camera that
+    frames the ground truth."""
+    import mitsuba as mi
+    from reneus_mi.errors import ReneusError
+    from reneus_mi.geometry.mesh import load_mesh
+    if mi.variant() is None:
+        mi.set_variant('scalar_rgb')
+    gt = load_mesh(gt_path, 'ground-truth mesh')
+    centre = gt.bounds.mean(axis=0)
+    radius = float(np.linalg.norm(gt.vertices - centre, axis=1).max())
+    direction = np.array([1.0, -1.4, 0.9]) / np.linalg.norm([1.0, -1.4, 0.9])
+    distance = 3.0 * radius
+    fov = float(np.degrees(2 * np.arcsin(1.05 * radius / distance)))
+    halves = []
+    for path in (mesh_path, gt_path):
+        try:
+            mesh = load_mesh(path)
+        except ReneusError:  # an empty mesh.ply: a run that found no surface
+            mesh = None
+        scene = {'type': 'scene', 'integrator': {'type': 'path', 'max_depth': 3},
+                 'sensor': {'type': 'perspective', 'fov': fov,
+                            'to_world': _look_at(centre + distance * direction, centre),
+                            'film': {'type': 'hdrfilm', 'width': PICTURE, 'height': PICTURE,
+                                     'rfilter': {'type': 'gaussian'}},
+                            'sampler': {'type': 'independent', 'sample_count': 64}},
+                 'sky': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': 0.35}},
+                 'sun': {'type': 'directional', 'direction': [-0.4, 0.7, -1.0],
+                         'irradiance': {'type': 'rgb', 'value': 2.2}}}
+        if mesh is not None:
+            m = mi.Mesh('mesh', len(mesh.vertices), len(mesh.faces))
+            params = mi.traverse(m)
+            params['vertex_positions'] = mesh.vertices.astype(np.float32).ravel()
+            params['faces'] = mesh.faces.astype(np.uint32).ravel()
+            params.update()
+            m.set_bsdf(mi.load_dict({'type': 'twosided', 'bsdf': {
+                'type': 'diffuse', 'reflectance': {'type': 'rgb', 'value': [0.62, 0.6, 0.55]}}}))
+            scene['mesh'] = m
+        img = np.asarray(mi.render(mi.load_dict(scene)))
+        halves.append(img)
+    both = np.concatenate(halves, axis=1)
+    bmp = mi.Bitmap(both).convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True)
+    tmp = out + '.tmp.png'
+    bmp.write(tmp)
+    os.replace(tmp, out)
+
+
+# --- the document ---------------------------------------------------------------------------
+
+def _fmt(value, spec: str) -> str:
+    return '' if value is None or value != value else format(value, spec)
+
+
+def write_doc(rows: list[dict], doc: str, command: str, started: dict, ended: dict,
+              configs: list[tuple[str, float]]) -> str:
+    smoke = max(m for _, m in configs) < 2
+    lines = ['# Reconstruction quality on a second renderer\'s photographs', '',
+             f'Written by `{command}` on {started["date"]} ({ended["minutes"]:.0f} min).', '',
+             f'Machine: {started["machine"]}; load average (1 min) {started["load"]:.2f} when it '
+             f'started, {ended["load"]:.2f} when it ended'
+             + (' (shared: the figures are those of a loaded machine)'
+                if max(started['load'], ended['load']) > 0.5 * (os.cpu_count() or 1) else '') + '.', '']
+    if smoke:
+        lines += ['**A smoke run**: budgets under 2 minutes say nothing about quality.', '']
+    lines += ['Data: `bench/blender_set.py` (Blender Cycles, a glass block IOR 1.45 exported by '
+              "Blender itself, constant world 0.8, 48 views at 128 px; each scene's `scene.json` "
+              'says how its block file was written). Each row is the README\'s path, in subprocesses: '
+              '`python -m reneus_mi.scene DATA -o scene.xml --preset P` (and `--set model.render.mode=neus` without '
+              'the block: optimize refuses a scene without a container otherwise), '
+              '`python -m reneus_mi.optimize scene.xml -o RUN --max-minutes M --quiet`, '
+              '`python -m reneus_mi.evaluate RUN/mesh.ply GT --json ...`. Chamfer-L1 x100 is '
+              "evaluate's, after its clean-up (`--postprocess "
+              f"{', '.join(sorted({r['postprocess'] for r in rows if r.get('postprocess')})) or '-'}`); "
+              "components are those of the run's `mesh.ply` as the run wrote it. "
+              'Pictures: the mesh (left) beside the ground truth (right).', '']
+    for scene in dict.fromkeys(r['scene'] for r in rows):
+        lines += [f'## {scene}', '', '| variant | preset | budget | Chamfer x100 | components | steps | '
+                  'PSNR | status | picture |', '| --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+        for r in (r for r in rows if r['scene'] == scene):
+            pic = f"[png]({r['picture']})" if r.get('picture') else ''
+            comp = _fmt(r.get('components'), 'd')
+            status = r['status'] + (' (earlier run)' if r.get('reused') else '')
+            lines.append(f"| {r['variant']} | {r['preset']} | {r['minutes']:g} min | "
+                         f"{_fmt(r.get('chamfer'), '.3f')} | {comp} | {_fmt(r.get('steps'), 'd')} | "
+                         f"{_fmt(r.get('psnr'), '.2f')} | {status} | {pic} |")
+        lines.append('')
+    verdicts = criterion(rows)
+    if verdicts:
+        c = CRITERION
+        lines += [f"## {c['preset']} at {c['minutes']:g} min: with the block against without", '',
+                  f"Issue 15 asks for at most {c['ratio']}x the Chamfer without the block and at most "
+                  f"{c['components']} components.", '',
+                  '| scene | box | nobox | ratio | components | met |', '| --- | --- | --- | --- | --- | --- |']
+        for v in verdicts:
+            lines.append(f"| {v['scene']} | {v['box']:.3f} | {v['nobox']:.3f} | {v['ratio']:.2f} | "
+                         f"{v['components']} | {'yes' if v['met'] else 'no'} |")
+        lines.append('')
+    os.makedirs(doc, exist_ok=True)
+    path = os.path.join(doc, 'quality.md')
+    with open(path + '.tmp', 'w') as f:
+        f.write('\n'.join(lines))
+    os.replace(path + '.tmp', path)
+    return path
+
+
+def criterion(rows: list[dict]) -> list[dict]:
+    """Issue 15's test per scene where both variants of its configuration finished."""
+    c = CRITERION
+    out = []
+    for scene in dict.fromkeys(r['scene'] for r in rows):
+        got = {r['variant']: r for r in rows if r['scene'] == scene and r['preset'] == c['preset']
+               and r['minutes'] == c['minutes'] and r.get('chamfer') is not None}
+        if 'box' in got and 'nobox' in got:
+            box, nobox = got['box'], got['nobox']
+            ratio = box['chamfer'] / nobox['chamfer']
+            comps = box.get('components')
+            out.append({'scene': scene, 'box': box['chamfer'], 'nobox': nobox['chamfer'], 'ratio': ratio,
+                        'components': comps,
+                        'met': ratio <= c['ratio'] and comps is not None and comps <= c['components']})
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(prog='bench/quality.py', description=__doc__.split('\n\n')[0])
+    parser.add_argument('--data', default='/work/data/blender_set', help='the set (default: %(default)s)')
+    parser.add_argument('--scenes', nargs='+', help='scenes of the set (default: all)')
+    parser.add_argument('--variants', nargs='+', default=['box', 'nobox'],
+                        help='dataset folders of each scene (default: %(default)s)')
+    parser.add_argument('--configs', nargs='+', default=list(CONFIGS),
+                        help='PRESET:MINUTES[,MINUTES...] (default: %(default)s)')
+    parser.add_argument('--runs', default=os.path.join(ROOT, 'runs', 'quality'),
+                        help='folder of the runs (default: runs/quality)')
+    parser.add_argument('--doc', default=os.path.join(ROOT, 'docs'),
+                        help='folder of quality.md and quality/ (default: docs)')
+    parser.add_argument('--postprocess', default='none',
+                        help="evaluate's --postprocess (default: %(default)s: the run's mesh.ply as the run "
+                             "cleaned it)")
+    parser.add_argument('--fresh', action='store_true', help='run again what an earlier run finished')
+    args = parser.parse_args(argv)
+    configs = parse_configs(args.configs)
+    if not os.path.isdir(args.data):
+        raise SystemExit(f'error: {args.data}: no such folder; make the set with bench/blender_set.py')
+    scenes = args.scenes or sorted(s for s in os.listdir(args.data)
+                                   if os.path.isfile(os.path.join(args.data, s, 'gt.ply')))
+    if not scenes:
+        raise SystemExit(f'error: {args.data}: no scenes (folders with a gt.ply)')
+    command = 'python bench/quality.py ' + shlex.join(sys.argv[1:] if argv is None else argv)
+    t0 = time.time()
+    started = {'date': datetime.date.today().isoformat(), 'load': os.getloadavg()[0],
+               'machine': f'{platform.processor() or platform.machine()}, {os.cpu_count()} cores'}
+    pictures = os.path.join(args.doc, 'quality')
+    os.makedirs(pictures, exist_ok=True)
+    rows = []
+    for scene in scenes:
+        gt = os.path.join(args.data, scene, 'gt.ply')
+        for variant in args.variants:
+            for preset, minutes in configs:
+                row = run_one(os.path.join(args.data, scene, variant), gt, args.runs, scene, variant,
+                              preset, minutes, args.fresh, args.postprocess)
+                mesh = os.path.join(row['run'], 'mesh.ply')
+                if os.path.isfile(mesh):
+                    name = f"{scene}_{variant}_{_tag(preset, minutes)}.png"
+                    picture(mesh, gt, os.path.join(pictures, name))
+                    row['picture'] = os.path.relpath(os.path.join(pictures, name), args.doc)
+                rows.append(row)
+                print(f"{scene} {variant} {preset} {minutes:g} min: {row['status']}, Chamfer "
+                      f"{_fmt(row.get('chamfer'), '.3f') or '-'}, components "
+                      f"{_fmt(row.get('components'), 'd') or '-'}", flush=True)
+                path = write_doc(rows, args.doc, command, started,
+                                 {'load': os.getloadavg()[0], 'minutes': (time.time() - t0) / 60}, configs)
+    print(f'wrote {path}')
+
+
+if __name__ == '__main__':
+    main()

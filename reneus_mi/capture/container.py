@@ -1,0 +1,83 @@
+"""The container standing on the board: its mesh from the stated shape and size, and its place.
+
+A container's own frame has the centre of its footprint at the origin, its W side along x,
+its D side along y and its height along -z (the board's z points into the table), so that
+it stands on z = 0. Its place on the board is ``(x, y, yaw)``: the footprint's centre in
+millimetres and the angle in degrees from the board's x axis to the container's W side,
+about the board's z. The shapes are those :func:`reneus_mi.data.objects.container_mesh` makes
+(box, rounded block, cylinder jar), scaled so that their outer size is the measured one.
+"""
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from reneus_mi.data.objects import ROUNDING, container_mesh
+
+#: Gap (mm) between the board and the container's bottom in rendered scenes: a sheet of
+#: paper under glass is never in optical contact, and coplanar surfaces confuse a ray tracer.
+CONTACT_GAP = 0.01
+
+
+def _inner_half(shape: str, size) -> np.ndarray:
+    """Half-extents to give :func:`container_mesh` for an outer size ``size`` (W, D, H)."""
+    outer = 0.5 * np.asarray(size, np.float64)
+    if shape == 'box':
+        return outer
+    if shape == 'rounded':
+        # container_mesh grows each half-extent by r (1 - 1/sqrt 3), r = ROUNDING x the smallest.
+        c = ROUNDING * (1.0 - 1.0 / np.sqrt(3.0))
+        return outer - c * outer.min() / (1.0 + c)
+    # The jar's radius reaches the inner box's corners and its height adds a rounding r.
+    side = outer[0] / np.sqrt(2.0)
+    hz = outer[2] / (1.0 + ROUNDING)
+    if hz > side:
+        hz = outer[2] - ROUNDING * side
+    return np.array([side, side, hz])
+
+
+def local_mesh(shape: str, size) -> trimesh.Trimesh:
+    """The container in its own frame (see the module docstring), outer size ``size`` in mm.
+
+    Smooth shapes keep their vertex normals (the renderers shade with them)."""
+    mesh = container_mesh(shape, _inner_half(shape, size))
+    normals = None if shape == 'box' else np.asarray(mesh.vertex_normals).copy()
+    lo, hi = mesh.bounds
+    # Standing on z = 0, upwards being -z; a mirror in z keeps a closed mesh closed once the
+    # faces are turned over.
+    vertices = np.asarray(mesh.vertices) - [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]]
+    vertices[:, 2] *= -1.0
+    out = trimesh.Trimesh(vertices, np.asarray(mesh.faces)[:, ::-1], process=False)
+    if normals is not None:
+        normals[:, 2] *= -1.0
+        out.vertex_normals = normals
+    return out
+
+
+def pose_matrix(pose, lift: float = 0.0) -> np.ndarray:
+    """4x4 board-from-container transform of a place ``(x, y, yaw)``; ``lift`` raises it (mm)."""
+    x, y, yaw = pose
+    c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+    M = np.eye(4)
+    M[:2, :2] = [[c, -s], [s, c]]
+    M[:3, 3] = [x, y, -lift]
+    return M
+
+
+def board_mesh(shape: str, size, pose, lift: float = 0.0) -> trimesh.Trimesh:
+    """The container placed on the board (board frame, millimetres), normals carried along."""
+    mesh = local_mesh(shape, size)
+    normals = None if shape == 'box' else np.asarray(mesh.vertex_normals).copy()
+    M = pose_matrix(pose, lift)
+    mesh.apply_transform(M)
+    if normals is not None:
+        mesh.vertex_normals = normals @ M[:3, :3].T
+    return mesh
+
+
+def symmetry(shape: str, size) -> float:
+    """The yaw period (degrees) of a container: 180 for a block, 90 for a square one, 0 when
+    every yaw is the same (a cylinder)."""
+    if shape == 'cylinder':
+        return 0.0
+    return 90.0 if np.isclose(size[0], size[1], rtol=1e-3) else 180.0

@@ -1,0 +1,145 @@
+"""What the capture command writes: a dataset the rest of reneus-mi reads, and its checks.
+
+Layout of ``DATASET_DIR`` (coordinates: the board's frame, millimetres)::
+
+    transforms.json      NeRF/nerfstudio cameras (pinhole: the photographs are undistorted),
+                         the ReNeuS keys (IOR, mesh_outside), "ambient" (C_out, linear RGB), and
+                         "capture": the board (pattern file, size, pose in the world, measured
+                         white and black print), each frame's exposure gain (already applied)
+                         and photograph, the lens, the container's place; written last
+    images/NAME.png      the photographs, undistorted, scaled, exposures normalised
+    container.ply        the container in the board's frame
+    board.png            the printed pattern (BOARD_PX_PER_MM pixels per millimetre)
+    report.json          calibration and registration figures, per view; views left out
+    overlays/NAME.jpg    pictures to check (see :mod:`reneus_mi.capture.overlay`)
+
+The masks are not written: the loader projects the registered container, as the paper did.
+"""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from reneus_mi.capture import overlay
+from reneus_mi.capture.board import Board
+from reneus_mi.capture.calibrate import Calibration
+from reneus_mi.capture.container import board_mesh, local_mesh
+from reneus_mi.capture.settings import CaptureSettings, to_json
+from reneus_mi.data.cameras import OPENGL_FROM_OPENCV
+from reneus_mi.data.images import write_image
+from reneus_mi.io import atomic_write_text
+from reneus_mi.data.synth import write_container
+
+#: Names the command writes into the dataset folder (a rerun after a refusal may replace them).
+OUTPUTS = ('transforms.json', 'images', 'container.ply', 'board.png', 'report.json', 'overlays')
+#: Resolution of the written board pattern.
+BOARD_PX_PER_MM = 10.0
+#: Words for the frame, said once.
+FRAME = ('board (OpenCV ChArUco: origin at the outer corner of the first square, x along the '
+         'columns, y along the rows, z into the table), millimetres')
+
+
+def _stem(name: str) -> str:
+    return os.path.splitext(name)[0]
+
+
+def write_views(out: str, names: list[str], images: np.ndarray, K: np.ndarray, c2w: np.ndarray,
+                meta: dict, frames: list[dict] | None = None) -> None:
+    """``images/NAME.png`` (RGB: the masks are the container's projection, not measured) and
+    ``transforms.json`` (written last) with the pinhole cameras, ``meta``'s keys and each
+    frame's extra keys. ``K`` is one (3,3) for all views or (N,3,3)."""
+    os.makedirs(os.path.join(out, 'images'), exist_ok=True)
+    for name, image in zip(names, images):
+        write_image(os.path.join(out, 'images', _stem(name) + '.png'), image)
+    h, w = images.shape[1:3]
+
+    def camera(k):
+        return {'fl_x': k[0, 0], 'fl_y': k[1, 1], 'cx': k[0, 2], 'cy': k[1, 2]}
+    shared = K.ndim == 2
+    top = {'camera_model': 'PINHOLE', 'w': w, 'h': h, **(camera(K) if shared else {})}
+    entries = []
+    for i, name in enumerate(names):
+        entry = {'file_path': f'images/{_stem(name)}.png', 'transform_matrix': (c2w[i] @ OPENGL_FROM_OPENCV).tolist()}
+        if not shared:
+            entry.update(camera(K[i]))
+        entry.update(frames[i] if frames else {})
+        entries.append(entry)
+    atomic_write_text(os.path.join(out, 'transforms.json'),
+                      json.dumps({**top, **meta, 'frames': entries}, indent=2, default=float))
+
+
+def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.ndarray,
+          images: np.ndarray, reg, light) -> dict:
+    """Write the dataset into ``out`` (checked by the caller); return the report."""
+    n, h, w = images.shape[:3]
+    write_container(board_mesh(s.container, s.size_mm, reg.pose), os.path.join(out, 'container.ply'),
+                    normals=s.container != 'box')
+    write_image(os.path.join(out, 'board.png'), board.pattern(BOARD_PX_PER_MM).astype(np.float32) / 255.0)
+    report = {
+        'frame': FRAME,
+        'settings': to_json(s),
+        'camera': {'K_photo': cal.K.tolist(), 'distortion': dict(zip(('k1', 'k2', 'p1', 'p2', 'k3'), cal.dist.tolist())),
+                   'photo_size': [cal.width, cal.height], 'K': K.tolist(), 'size': [w, h],
+                   'rms_px': cal.rms},
+        'views': [{'photo': v.name, 'corners_found': int(len(v.ids)), 'corners_used': int(v.used.sum()),
+                   'rms_px': v.rms, 'c2w': v.c2w.tolist(), 'exposure_gain': float(g),
+                   'container_residual_px': float(r)}
+                  for v, g, r in zip(cal.views, light.gains, reg.view_residuals)],
+        'left_out': cal.dropped,
+        'container': {'shape': s.container, 'size_mm': list(s.size_mm), 'pose': list(reg.pose),
+                      'pose_given': s.container_pose is not None, 'residual_px': reg.residual},
+        'light': {'ambient': light.ambient.tolist(), 'ambient_from': light.ambient_from,
+                  'board_white': light.white.tolist(), 'board_black': light.black.tolist()},
+    }
+    atomic_write_text(os.path.join(out, 'report.json'), json.dumps(report, indent=2))
+    meta = {
+        'IOR': s.ior, 'mesh_outside': 'container.ply',
+        'ambient': light.ambient.tolist(),
+        'capture': {
+            'frame': FRAME, 'units': 'mm',
+            'board': {'pattern': 'board.png', 'px_per_mm': BOARD_PX_PER_MM, 'squares': [board.columns, board.rows],
+                      'square_mm': board.square_mm, 'marker_mm': board.marker_mm, 'dictionary': board.dictionary,
+                      'size_mm': list(board.size_mm), 'to_world': np.eye(4).tolist(),
+                      'white': light.white.tolist(), 'black': light.black.tolist()},
+            'container': report['container'],
+            'exposure': 'each frame\'s exposure_gain (relative to the darkest photograph) is divided out of its image',
+        },
+    }
+    write_views(out, [v.name for v in cal.views], images, K, np.stack([v.c2w for v in cal.views]), meta,
+                [{'photo': v.name, 'exposure_gain': float(g)} for v, g in zip(cal.views, light.gains)])
+    return report
+
+
+def write_overlays(out: str, images, K, c2w, board: Board, cal: Calibration, s: CaptureSettings, *,
+                   measured=None, pose=None, residuals=None) -> None:
+    """One overlay per photograph into ``out/overlays``."""
+    segments = overlay.wireframe(s.container, local_mesh(s.container, s.size_mm))
+    for i, view in enumerate(cal.views):
+        text = f'{view.name}: {int(view.used.sum())} corners, RMS {view.rms:.2f} px'
+        if residuals is not None and np.isfinite(residuals[i]):
+            text += f', container {residuals[i]:.2f} px'
+        picture = overlay.draw(images[i], K, c2w[i], board, ids=view.ids, pixels=view.pixels, used=view.used,
+                               lens=(cal.K, cal.dist), segments=segments, pose=pose,
+                               measured=None if measured is None else measured[i], text=text)
+        overlay.write(os.path.join(out, 'overlays', _stem(view.name) + '.jpg'), picture)
+
+
+def table(report: dict) -> str:
+    """The per-view table the command prints."""
+    lines = [f"{'photograph':<24} {'corners':>8} {'used':>5} {'RMS px':>7} {'gain':>6} {'container px':>12}"]
+    for v in report['views']:
+        lines.append(f"{v['photo']:<24} {v['corners_found']:>8} {v['corners_used']:>5} {v['rms_px']:>7.3f} "
+                     f"{v['exposure_gain']:>6.3f} {v['container_residual_px']:>12.2f}")
+    for name, reason in report['left_out'].items():
+        lines.append(f'{name:<24} left out: {reason}')
+    cam = report['camera']
+    d = cam['distortion']
+    lines.append(f"camera: f {cam['K_photo'][0][0]:.2f} px, principal point ({cam['K_photo'][0][2]:.2f}, "
+                 f"{cam['K_photo'][1][2]:.2f}), k1 {d['k1']:.4f} k2 {d['k2']:.4f} p1 {d['p1']:.5f} "
+                 f"p2 {d['p2']:.5f} k3 {d['k3']:.4f}, RMS {cam['rms_px']:.3f} px")
+    light = report['light']
+    lines.append(f"light: C_out {np.round(light['ambient'], 4).tolist()} (from the {light['ambient_from']}), "
+                 f"white print {np.round(light['board_white'], 4).tolist()}")
+    return '\n'.join(lines)

@@ -1,0 +1,299 @@
+"""Finding the container on the board from the photographs (the paper labelled its edges by hand).
+
+The board and the cameras are known once calibrated, so each photograph can be predicted
+as the bare board would look: the printed pattern warped into the view (:func:`predict_board`).
+Where the photograph disagrees with that prediction, something stands between the camera
+and the board: the glass, which displaces the pattern behind it, and the specimen
+(:func:`changed_region`). Every container here is convex, so its silhouette in a view is
+the convex hull of its projected vertices, and the disagreeing region of each view, closed
+and filled, is a measurement of that silhouette.
+
+The container's size is measured and it stands on the board, so three numbers remain: its
+place ``(x, y, yaw)`` (:mod:`reneus_mi.capture.container`). :func:`register` finds them by
+fitting the projected silhouettes to the measured ones over all views at once, through each
+view's signed distance map to the measured silhouette's outline (as
+:mod:`reneus_mi.train.silhouette` does for the trainer): a start from the rays through the
+measured silhouettes' centroids, a coarse search over yaw, then a robust least-squares
+refinement of all three. The residual is the RMS distance in pixels between the projected
+and the measured outlines.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+from scipy import ndimage, optimize
+
+from reneus_mi.capture.board import Board
+from reneus_mi.capture.container import local_mesh, pose_matrix, symmetry
+from reneus_mi.config import RenderConfig
+from reneus_mi.errors import ReneusError
+
+#: A pixel disagrees with the bare board when it differs by this share of the board's contrast.
+CHANGE_THRESHOLD = 0.35
+#: Points sampled along each view's projected outline.
+OUTLINE_POINTS = 256
+#: Yaw steps (degrees) of the coarse search.
+YAW_STEP = 3.0
+#: Distances beyond this share of the container's apparent size count as this much (outliers:
+#: a view whose measured silhouette is wrong must not drag the fit).
+TRUNCATION = 0.25
+#: The container is not found when the median view's residual exceeds this share of its
+#: apparent size (and 2 pixels).
+FOUND_LIMIT = 0.05
+
+
+@dataclasses.dataclass
+class Registration:
+    """The container's place on the board and how well the photographs agree with it."""
+    pose: tuple[float, float, float]
+    #: RMS outline distance (pixels of the dataset's images) over all views, and per view.
+    residual: float
+    view_residuals: np.ndarray
+    #: The measured silhouettes (N,h,w) bool, for the overlays.
+    measured: np.ndarray
+
+
+def predict_board(board: Board, K: np.ndarray, c2w: np.ndarray, size: tuple[int, int]):
+    """The bare board as a pinhole camera sees it: (h,w) share of white in each pixel and
+    (h,w) bool of pixels wholly on the printed pattern. Pixels in reneus-mi's convention."""
+    width, height = size
+    w2c = np.linalg.inv(c2w)
+    H_board = K @ w2c[:3][:, [0, 1, 3]]                                      # board mm -> pixels
+    # Supersampled twice, then averaged: a pixel's share of white, not a point sample.
+    depth = (w2c[:3, :3] @ np.c_[board.corners.T] + w2c[:3, 3:]).T[:, 2]
+    px_per_mm = K[0, 0] / max(depth.min(), 1e-6)
+    ppm = float(np.clip(np.ceil(4.0 * px_per_mm), 2.0, 40.0))
+    pattern = board.pattern(ppm).astype(np.float32) / 255.0
+    from_pattern = np.diag([1.0 / ppm, 1.0 / ppm, 1.0])
+    from_pattern[:2, 2] = 0.5 / ppm                                      # pattern pixel centres
+    to_cv = np.array([[2.0, 0.0, -0.5], [0.0, 2.0, -0.5], [0.0, 0.0, 1.0]])  # 2x, OpenCV pixels
+    H = to_cv @ H_board @ from_pattern
+    big = (2 * width, 2 * height)
+    white = cv2.warpPerspective(pattern, H, big, flags=cv2.INTER_LINEAR, borderValue=0.0)
+    cover = cv2.warpPerspective(np.ones_like(pattern), H, big, flags=cv2.INTER_LINEAR, borderValue=0.0)
+    white = cv2.resize(white, size, interpolation=cv2.INTER_AREA)
+    cover = cv2.resize(cover, size, interpolation=cv2.INTER_AREA)
+    on_board = cv2.erode((cover > 0.999).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    return white, on_board
+
+
+def linear(image: np.ndarray) -> np.ndarray:
+    """Linear values of display values (the camera response the trainer assumes)."""
+    return np.clip(image, 0.0, 1.0) ** RenderConfig.gamma
+
+
+def board_levels(lin: np.ndarray, white: np.ndarray, on_board: np.ndarray, keep=None):
+    """Median linear value of the black and of the white print (channels kept if ``lin`` has
+    them), or (None, None) when too little of either is seen.
+
+    From the pixels wholly of one print, and of those the half farthest from the other (the
+    lens blurs edges; the white ring around a corner may be two pixels wide); ``keep`` limits
+    the pixels.
+    """
+    pick = on_board if keep is None else on_board & keep
+    share = cv2.GaussianBlur(white, (0, 0), 1.0)
+    levels = []
+    for wholly, sign in ((pick & (white < 0.02), -1.0), (pick & (white > 0.98), 1.0)):
+        if wholly.sum() < 32:
+            return None, None
+        inner = wholly & (sign * share >= np.median(sign * share[wholly]))
+        levels.append(np.median(lin[inner], axis=0))
+    return tuple(levels)
+
+
+def changed_region(image: np.ndarray, white: np.ndarray, on_board: np.ndarray, square_px: float):
+    """Where a photograph (display values, (h,w,3)) disagrees with the bare board: closed,
+    filled, the largest part, its convex hull. (h,w) bool; all False if nothing disagrees."""
+    lin = linear(image).mean(axis=-1)
+    black, bright = board_levels(lin, white, on_board)
+    if black is None or not bright > black:
+        return np.zeros(lin.shape, bool)
+    residual = np.abs(lin - (black + (bright - black) * white)) / (bright - black)
+    residual = cv2.GaussianBlur(residual.astype(np.float32), (0, 0), 0.7)
+    changed = ((residual > CHANGE_THRESHOLD) & on_board).astype(np.uint8)
+    changed = cv2.morphologyEx(changed, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    radius = max(2, int(round(0.5 * square_px)))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    changed = cv2.morphologyEx(changed, cv2.MORPH_CLOSE, disc)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(changed)
+    if n <= 1:
+        return np.zeros(lin.shape, bool)
+    largest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    points = np.argwhere(labels == largest)[:, ::-1].astype(np.int32)
+    hull = cv2.convexHull(points)
+    out = np.zeros(lin.shape, np.uint8)
+    cv2.fillConvexPoly(out, hull, 1)
+    return out > 0
+
+
+class Outline:
+    """The projected outline of the container at a place on the board, in every view."""
+
+    def __init__(self, shape: str, size, K: np.ndarray, c2w: np.ndarray):
+        mesh = local_mesh(shape, size)
+        hull = np.asarray(mesh.convex_hull.vertices)
+        # A smooth container's hull has thousands of vertices: its outline needs far fewer.
+        if len(hull) > 512:
+            hull = hull[np.random.default_rng(0).choice(len(hull), 512, replace=False)]
+        self.points = hull
+        self.K = K
+        self.w2c = np.linalg.inv(c2w)
+
+    def polygon(self, pose, view: int) -> np.ndarray:
+        """(M,2) outline polygon (pixels) of the container at ``pose`` in ``view``."""
+        M = pose_matrix(pose)
+        world = self.points @ M[:3, :3].T + M[:3, 3]
+        cam = world @ self.w2c[view, :3, :3].T + self.w2c[view, :3, 3]
+        uv = cam @ self.K.T
+        px = uv[:, :2] / np.maximum(uv[:, 2:], 1e-9)
+        return cv2.convexHull(px.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+
+    def samples(self, pose, view: int, n: int = OUTLINE_POINTS) -> np.ndarray:
+        """``n`` points spread evenly along the outline."""
+        poly = self.polygon(pose, view)
+        edges = np.roll(poly, -1, axis=0) - poly
+        length = np.linalg.norm(edges, axis=1)
+        at = (np.arange(n) + 0.5) * length.sum() / n
+        cum = np.concatenate([[0.0], np.cumsum(length)])
+        k = np.clip(np.searchsorted(cum, at, side='right') - 1, 0, len(poly) - 1)
+        t = (at - cum[k]) / np.maximum(length[k], 1e-12)
+        return poly[k] + t[:, None] * edges[k]
+
+    def size(self, pose, view: int) -> float:
+        poly = self.polygon(pose, view)
+        return float(np.sqrt(max(cv2.contourArea(poly.astype(np.float32)), 1.0)))
+
+
+def _distance_maps(measured: np.ndarray) -> np.ndarray:
+    """Signed distance (pixels) to each measured silhouette's outline, > 0 outside."""
+    return np.stack([ndimage.distance_transform_edt(~m) - ndimage.distance_transform_edt(m)
+                     for m in measured]).astype(np.float32)
+
+
+def _lookup(D: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Bilinear values of a map at pixel positions (reneus-mi convention)."""
+    return ndimage.map_coordinates(D, [points[:, 1] - 0.5, points[:, 0] - 0.5], order=1, mode='nearest')
+
+
+class _Fit:
+    """The outline distances of a pose over all views whose silhouette was measured."""
+
+    def __init__(self, outline: Outline, measured: np.ndarray, trusted: np.ndarray, views):
+        self.outline, self.views = outline, list(views)
+        self.D = _distance_maps(measured)
+        self.trusted = trusted.astype(np.float32)
+
+    def distances(self, pose, clip: float | None = None) -> np.ndarray:
+        """(views, OUTLINE_POINTS) distances; 0 where the point lies off the board (unknown)."""
+        out = np.zeros((len(self.views), OUTLINE_POINTS))
+        for j, v in enumerate(self.views):
+            p = self.outline.samples(pose, v)
+            d = _lookup(self.D[v], p) * (_lookup(self.trusted[v], p) > 0.5)
+            out[j] = d if clip is None else np.clip(d, -clip[j], clip[j])
+        return out
+
+
+def _wrap(yaw: float, period: float) -> float:
+    return 0.0 if period == 0 else float((yaw + 0.5 * period) % period - 0.5 * period)
+
+
+def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarray, board: Board,
+             shape: str, size, *, pose=None, start=None, measured: np.ndarray | None = None) -> Registration:
+    """Find the container (``shape``, outer ``size`` in mm) standing on ``board``.
+
+    ``images`` (N,h,w,3) are the undistorted photographs (display values), ``valid`` where
+    they hold photograph, ``K`` their pinhole intrinsics and ``c2w`` (N,4,4) their cameras in
+    the board's frame. ``pose`` skips the search (a manual place) but still measures the
+    residual; ``start`` (a place found before) skips the coarse search; ``measured`` reuses
+    silhouettes measured before. Raises when the container is
+    not found (the result's silhouettes are on the exception, ``err.measured``).
+    """
+    n, h, w = images.shape[:3]
+    trusted = np.zeros((n, h, w), bool)
+    squares = np.zeros(n)
+    need = measured is None
+    if need:
+        measured = np.zeros((n, h, w), bool)
+    for v in range(n):
+        white, on_board = predict_board(board, K, c2w[v], (w, h))
+        trusted[v] = on_board & valid[v]
+        # A square's size in pixels at the board's centre: the scale of the disagreement's gaps.
+        depth = np.linalg.norm(c2w[v, :3, 3] - [*np.multiply(board.size_mm, 0.5), 0.0])
+        squares[v] = K[0, 0] * board.square_mm / depth
+        if need:
+            measured[v] = changed_region(images[v], white, trusted[v], squares[v])
+    outline = Outline(shape, size, K, c2w)
+    seen = [v for v in range(n) if measured[v].any()]
+    if len(seen) < max(2, n // 3):
+        err = ReneusError(f'container not found: {len(seen)} of {n} photographs show something on '
+                          'the board that the bare board does not explain; expected the container '
+                          'in most of them (see the overlays; or give --container-pose x,y,yaw)')
+        err.measured = measured
+        raise err
+    fit = _Fit(outline, measured, trusted, seen)
+    period = symmetry(shape, size)
+    if pose is None:
+        centre = _start(measured, K, c2w, seen, size) if start is None else start[:2]
+        apparent = np.array([outline.size((*centre, 0.0), v) for v in seen])
+        clip = TRUNCATION * apparent
+        if start is None:
+            def cost(p): return float(np.mean(np.abs(fit.distances(p, clip))))
+            yaws = np.arange(0.0, period, YAW_STEP) if period else np.array([0.0])
+            starts = [(*centre, y) for _, y in sorted((cost((*centre, y)), y) for y in yaws)[:3]]
+        else:
+            starts = [tuple(start)]
+        pose = min((_refine(fit, p0, clip, period) for p0 in starts), key=lambda r: r[0])[1]
+    pose = tuple(float(x) for x in pose)
+    d = fit.distances(pose)
+    apparent = np.array([outline.size(pose, v) for v in seen])
+    inlier = np.abs(d) < TRUNCATION * apparent[:, None]
+    per_view = np.full(n, np.nan)
+    for j, v in enumerate(seen):
+        per_view[v] = float(np.sqrt(np.mean(d[j][inlier[j]] ** 2))) if inlier[j].any() else np.inf
+    residual = float(np.sqrt(np.mean(d[inlier] ** 2))) if inlier.any() else float('inf')
+    result = Registration(pose=pose, residual=residual, view_residuals=per_view, measured=measured)
+    limit = max(2.0, FOUND_LIMIT * float(np.median(apparent)))
+    if not np.nanmedian(per_view[seen]) <= limit:
+        err = ReneusError(f'container not found: at the best place x={pose[0]:.1f} mm, y={pose[1]:.1f} mm, '
+                          f'yaw={pose[2]:.1f} deg its outline lies {np.nanmedian(per_view[seen]):.1f} px '
+                          f'(median view) from what the photographs show; expected at most {limit:.1f} px '
+                          '(check --size-mm and --container; see the overlays; or give --container-pose x,y,yaw)')
+        err.measured, err.registration = measured, result
+        raise err
+    return result
+
+
+def _refine(fit: _Fit, p0, clip, period: float):
+    """Robust least squares of the outline distances from the place ``p0``: (cost, place)."""
+    p0 = np.asarray(p0, np.float64)
+    free = slice(0, 3 if period else 2)
+
+    def place(q):
+        p = p0.copy()
+        p[free] = q
+        return p
+
+    sol = optimize.least_squares(lambda q: fit.distances(place(q), clip).ravel(), p0[free],
+                                 loss='soft_l1', f_scale=1.0, diff_step=1e-3)
+    p = place(sol.x)
+    p[2] = _wrap(p[2], period)
+    return float(np.mean(np.abs(fit.distances(p, clip)))), tuple(float(x) for x in p)
+
+
+def _start(measured, K, c2w, views, size) -> tuple[float, float]:
+    """The point nearest to the rays through the measured silhouettes' centroids, at half the
+    container's height: a start for x, y."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for v in views:
+        ys, xs = np.nonzero(measured[v])
+        d = c2w[v, :3, :3] @ np.linalg.solve(K, [xs.mean() + 0.5, ys.mean() + 0.5, 1.0])
+        d /= np.linalg.norm(d)
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ c2w[v, :3, 3]
+    # The point is constrained to the container's mid-height plane (z = -H/2).
+    A2, b2 = A[:2, :2], b[:2] - A[:2, 2] * (-0.5 * size[2])
+    x, y = np.linalg.solve(A2, b2)
+    return float(x), float(y)

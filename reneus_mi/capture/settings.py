@@ -1,0 +1,194 @@
+"""What a photographer states about a capture: the printed board, the container, the sizes.
+
+The settings come from the command line (``--squares 12x9 --square-mm 20 ...``) or from a
+small file beside the photographs, ``capture.json``, with the same names::
+
+    {"board": "charuco", "squares": "12x9", "square_mm": 20, "marker_mm": 15,
+     "dictionary": "DICT_4X4_100", "container": "box", "size_mm": "50x35x25", "ior": 1.5}
+
+A setting given both ways must agree: a measured size is not something to override
+silently. Every field's docstring is its command-line help (:func:`add_arguments`).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import typing
+
+from reneus_mi.cli import field_docs
+from reneus_mi.errors import ReneusError
+from reneus_mi.io import load_json
+
+#: The capture file looked for beside the photographs.
+CAPTURE_FILE = 'capture.json'
+#: Container shapes a capture can state (those of :data:`reneus_mi.data.objects.CONTAINERS`).
+SHAPES = ('box', 'rounded', 'cylinder')
+
+
+@dataclasses.dataclass
+class CaptureSettings:
+    board: str = 'charuco'
+    """Calibration target printed under the container (only 'charuco')."""
+    squares: tuple[int, int] | None = None
+    """Squares of the board along its columns and rows, e.g. 12x9 (not the inner corners)."""
+    square_mm: float | None = None
+    """Side of one printed square in millimetres, measured on the print."""
+    marker_mm: float | None = None
+    """Side of one printed ArUco marker in millimetres (smaller than a square)."""
+    dictionary: str = 'DICT_4X4_100'
+    """OpenCV ArUco dictionary of the markers, e.g. DICT_4X4_100, DICT_5X5_250."""
+    container: str = 'box'
+    """Container shape: box, rounded (a block with rounded edges) or cylinder (a jar)."""
+    size_mm: tuple[float, float, float] | None = None
+    """Outer size of the container in millimetres, WxDxH: its footprint on the board and its
+    height (a cylinder: diameter x diameter x height)."""
+    ior: float | None = None
+    """Index of refraction of the container (glass about 1.5, acrylic 1.49, epoxy resin 1.55)."""
+    max_size: int | None = None
+    """Largest side in pixels of the dataset's images (the photographs are scaled down to it)."""
+    downscale: float | None = None
+    """Divide the photographs' size by this factor for the dataset (instead of --max-size)."""
+    container_pose: tuple[float, float, float] | None = None
+    """The container's place on the board, x,y,yaw (mm, mm, degrees), when it is not found
+    automatically: the centre of its footprint and the angle of its W side from the board's x."""
+
+    def check(self, where: str) -> 'CaptureSettings':
+        """Raise naming the first setting that is missing, out of range or contradicts another."""
+        for name in ('squares', 'square_mm', 'marker_mm', 'size_mm', 'ior'):
+            if getattr(self, name) is None:
+                raise ReneusError(f"{where}: {name} is not given; expected --{_flag(name)} "
+                                  f"or '{name}' in {CAPTURE_FILE}")
+        if self.board != 'charuco':
+            raise ReneusError(f"{where}: board={self.board!r}; expected 'charuco'")
+        if self.container not in SHAPES:
+            raise ReneusError(f"{where}: container={self.container!r}; expected one of {', '.join(SHAPES)}")
+        columns, rows = self.squares
+        if min(columns, rows) < 3:
+            raise ReneusError(f"{where}: squares={columns}x{rows}; expected at least 3x3 squares")
+        if not 0 < self.marker_mm < self.square_mm:
+            raise ReneusError(f"{where}: marker_mm={self.marker_mm:g} and square_mm={self.square_mm:g} "
+                              "contradict each other; expected a marker smaller than its square")
+        if min(self.size_mm) <= 0:
+            raise ReneusError(f"{where}: size_mm={_x(self.size_mm)}; expected positive sizes")
+        width, depth, _ = self.size_mm
+        board = (columns * self.square_mm, rows * self.square_mm)
+        if max(width, depth) > max(board) or width * depth > board[0] * board[1]:
+            raise ReneusError(f"{where}: size_mm={_x(self.size_mm)} and the board "
+                              f"({_x(board)} mm: squares {columns}x{rows} of {self.square_mm:g} mm) "
+                              "contradict each other; expected a container that stands on the board")
+        if self.container == 'cylinder' and width != depth:
+            raise ReneusError(f"{where}: size_mm={_x(self.size_mm)} for a cylinder; expected "
+                              "diameter x diameter x height (equal first two)")
+        if not 1.0 < self.ior <= 3.0:
+            raise ReneusError(f"{where}: ior={self.ior:g}; expected a number in (1, 3] (glass: about 1.5)")
+        if self.max_size is not None and self.downscale is not None:
+            raise ReneusError(f"{where}: max_size={self.max_size} and downscale={self.downscale:g} "
+                              "both given; expected one of them")
+        if self.max_size is not None and self.max_size < 64:
+            raise ReneusError(f"{where}: max_size={self.max_size}; expected at least 64 pixels")
+        if self.downscale is not None and not self.downscale >= 1.0:
+            raise ReneusError(f"{where}: downscale={self.downscale:g}; expected a factor >= 1")
+        return self
+
+
+def _flag(name: str) -> str:
+    return name.replace('_', '-')
+
+
+def _x(values) -> str:
+    return 'x'.join(f'{v:g}' for v in values)
+
+
+def numbers(text, count: int, kind, sep: str, name: str, where: str) -> tuple:
+    """``'12x9'``, ``[12, 9]`` or ``'1,2,3'`` as a tuple of ``count`` numbers of ``kind``."""
+    parts = text.split(sep) if isinstance(text, str) else text
+    try:
+        if not isinstance(parts, (list, tuple)) or len(parts) != count:
+            raise ValueError
+        values = tuple(kind(float(p)) if kind is int and float(p) == int(float(p)) else kind(p)
+                       for p in parts)
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError
+    except (TypeError, ValueError):
+        example = sep.join(['12', '9'] if count == 2 else ['50', '35', '25'])
+        raise ReneusError(f"{where}: {name}={text!r}; expected {count} numbers like {example}") from None
+    return values
+
+
+#: How each field is written: (count, type, separator) for the tuples, the type otherwise.
+_FORMATS = {'squares': (2, int, 'x'), 'size_mm': (3, float, 'x'), 'container_pose': (3, float, ',')}
+
+
+def _parse(name: str, value, where: str):
+    if value is None:
+        return None
+    if name in _FORMATS:
+        return numbers(value, *_FORMATS[name], name, where)
+    kind = typing.get_type_hints(CaptureSettings)[name]
+    base = next((k for k in typing.get_args(kind) if k is not type(None)), kind)
+    try:
+        if base is str:
+            if not isinstance(value, str):
+                raise ValueError
+            return value
+        if isinstance(value, bool) or (base is int and float(value) != int(float(value))):
+            raise ValueError
+        number = base(float(value)) if base is int else base(value)
+        if not math.isfinite(number):
+            raise ValueError
+        return number
+    except (TypeError, ValueError):
+        raise ReneusError(f"{where}: {name}={value!r}; expected {'a text' if base is str else 'a number'}") from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """One option per setting (``--square-mm``), its docstring as help; none has a default
+    here, so that the capture file can give it."""
+    docs = field_docs(CaptureSettings)
+    group = parser.add_argument_group(f'capture settings (or in {CAPTURE_FILE} beside the photographs)')
+    for f in dataclasses.fields(CaptureSettings):
+        default = '' if f.default is None else f' (default: {f.default})'
+        group.add_argument('--' + _flag(f.name), dest=f.name, default=None, metavar=f.name.upper(),
+                           help=docs[f.name] + default)
+
+
+def resolve(args: argparse.Namespace | dict, photos: str, settings_file: str | None = None) -> CaptureSettings:
+    """The settings from the command line and the capture file (``photos/capture.json`` unless
+    ``settings_file`` names one), checked. A setting given both ways must agree."""
+    given = vars(args) if isinstance(args, argparse.Namespace) else dict(args)
+    path = settings_file or os.path.join(photos, CAPTURE_FILE)
+    stored = {}
+    if settings_file is not None or os.path.isfile(path):
+        stored = load_json(path, 'capture settings')
+    names = [f.name for f in dataclasses.fields(CaptureSettings)]
+    unknown = sorted(set(stored) - set(names))
+    if unknown:
+        raise ReneusError(f"{path}: unknown setting(s) {', '.join(unknown)}; expected some of {', '.join(names)}")
+    values = {}
+    for name in names:
+        flag = _parse(name, given.get(name), f'--{_flag(name)}')
+        kept = _parse(name, stored.get(name), path)
+        if flag is not None and kept is not None and flag != kept:
+            raise ReneusError(f"--{_flag(name)} {given[name]} contradicts {name}={stored[name]!r} in "
+                              f"{path}; expected one value (give it once)")
+        value = flag if flag is not None else kept
+        if value is not None:
+            values[name] = value
+    where = path if stored else 'capture settings'
+    return CaptureSettings(**values).check(where)
+
+
+def to_json(settings: CaptureSettings) -> dict:
+    """The settings as a capture file holds them (what :func:`resolve` reads back)."""
+    out = {}
+    for f in dataclasses.fields(CaptureSettings):
+        value = getattr(settings, f.name)
+        if value is None:
+            continue
+        if f.name in _FORMATS:
+            _, kind, sep = _FORMATS[f.name]
+            value = sep.join(f'{v:g}' for v in value)
+        out[f.name] = value
+    return out

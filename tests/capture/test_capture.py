@@ -1,0 +1,210 @@
+"""From photographs with no poses to a dataset (issue #16): calibration, undistortion, the
+container found, exposure and light, against the simulated capture's ground truth."""
+from __future__ import annotations
+
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+from reneus_mi.capture import command, settings
+from reneus_mi.capture.simulate import Rig, distort_image
+from reneus_mi.capture.undistort import undistort
+from reneus_mi.data import load_dataset
+
+
+@pytest.fixture(scope='module')
+def shot(simulated_capture):
+    return simulated_capture
+
+
+@pytest.fixture(scope='module')
+def made(shot, tmp_path_factory):
+    """The capture command run on the photographs alone (the settings from capture.json)."""
+    out = tmp_path_factory.mktemp('capture') / 'dataset'
+    assert command.main([shot['photos'], '-o', str(out), '--quiet']) == 0
+    with open(out / 'report.json') as f:
+        return {'out': out, 'report': json.load(f)}
+
+
+def _angle(R) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def test_calibration_against_the_truth(shot, made):
+    truth, report = shot['meta'], made['report']
+    K, K_est = np.array(truth['K']), np.array(report['camera']['K_photo'])
+    for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)):
+        assert abs(K_est[i, j] / K[i, j] - 1.0) < 0.005, (i, j, K_est[i, j], K[i, j])
+    cameras = {v['name']: np.array(v['c2w']) for v in truth['views']}
+    assert len(report['views']) == len(cameras) and not report['left_out']
+    for view in report['views']:
+        T, C = cameras[view['photo']], np.array(view['c2w'])
+        assert _angle(T[:3, :3].T @ C[:3, :3]) < 0.1, view['photo']
+        assert np.linalg.norm(T[:3, 3] - C[:3, 3]) < 0.5, view['photo']
+        assert view['rms_px'] < 0.3 and view['corners_used'] >= 30
+
+
+def test_container_found_on_the_board(shot, made):
+    x, y, yaw = made['report']['container']['pose']
+    tx, ty, tyaw = shot['meta']['container']['pose']
+    assert np.hypot(x - tx, y - ty) < 0.5
+    assert abs((yaw - tyaw + 90.0) % 180.0 - 90.0) < 0.5
+    assert made['report']['container']['residual_px'] < 3.0
+
+
+def test_exposure_and_light(shot, made):
+    truth, report = shot['meta'], made['report']
+    gains = np.array([{v['name']: v['gain'] for v in truth['views']}[w['photo']] for w in report['views']])
+    measured = np.array([v['exposure_gain'] for v in report['views']])
+    # Relative to the darkest photograph, as the command normalises.
+    np.testing.assert_allclose(measured, gains / gains.min(), rtol=0.02)
+    darkest = gains.min()
+    np.testing.assert_allclose(report['light']['ambient'], truth['ambient'] * darkest, rtol=0.02)
+    np.testing.assert_allclose(report['light']['board_white'], truth['board']['white'] * darkest, rtol=0.03)
+
+
+def test_dataset_reads_back_in_millimetres(made, shot):
+    ds = load_dataset(str(made['out']))
+    assert len(ds) == len(shot['meta']['views'])
+    np.testing.assert_allclose(ds.ambient, made['report']['light']['ambient'])
+    # The container's projection is the mask; the block is 50x35x25 mm on the board.
+    import trimesh
+    from reneus_mi.capture.container import pose_matrix
+    block = trimesh.load(ds.container)
+    block.apply_transform(np.linalg.inv(pose_matrix(made['report']['container']['pose'])))
+    np.testing.assert_allclose(block.extents, shot['meta']['container']['size_mm'], atol=1e-6)
+    np.testing.assert_allclose(block.bounds[:, 2], [-25.0, 0.0], atol=1e-6)
+    assert ds.masks.any(axis=(1, 2)).all()
+    # Exposures normalised: the white print is equally bright in every image.
+    assert len(os.listdir(made['out'] / 'overlays')) == len(ds)
+
+
+def test_board_corners_where_the_pattern_puts_them():
+    """Corners of a blurred, upright and mirrored board image, at known places to 0.02 px
+    (OpenCV 4.11's own ChArUco corners were half a pixel off)."""
+    from reneus_mi.capture.board import Board
+    board = Board(6, 5, 20.0, 15.0)
+    ppm, pad = 4.0, 40
+    image = cv2.GaussianBlur(np.pad(board.pattern(ppm), pad, constant_values=255), (0, 0), 1.2)
+    h, w = image.shape
+    expected = board.corners[:, :2] * ppm + pad
+    for flipped in (False, True):
+        found = board.detect(image[::-1, ::-1].copy() if flipped else image)
+        assert len(found.ids) == len(board.corners)
+        at = np.array([w, h]) - found.pixels if flipped else found.pixels
+        err = at - expected[found.ids]
+        assert np.abs(err).max() < 0.02, (flipped, np.abs(err).max())
+
+
+def test_undistortion_inverts_a_known_lens():
+    """A pinhole image through the simulator's lens (its own inverse mapping, iterative) and
+    back through :func:`undistort` comes back; without undistortion it does not."""
+    rig = Rig(width=320, height=240, focal_px=300.0, principal_offset_px=(7.0, -5.0),
+              distortion=(-0.2, 0.08, 0.001, -0.0015, 0.01))
+    K = rig.K()
+    K_r = K.copy()
+    ys, xs = np.mgrid[:240, :320] + 0.5
+    # Smooth enough for bilinear resampling: periods of 12 pixels.
+    pinhole = (0.5 + 0.25 * np.sin(2 * np.pi * xs / 12.0) * np.cos(2 * np.pi * ys / 15.0)).astype(np.float32)
+    photo = distort_image(pinhole, K_r, rig)
+    back, covered = undistort(photo, K, rig.distortion, K, (320, 240))
+    inner = covered.copy()
+    inner[:, :24] = inner[:, -24:] = False
+    inner[:24] = inner[-24:] = False
+    assert inner.mean() > 0.5
+    assert np.abs(back - pinhole)[inner].mean() < 0.01
+    assert np.abs(photo - pinhole)[inner].mean() > 0.05
+    # To half the size (a smoother pattern): the pinhole image averaged 2x2.
+    from reneus_mi.capture.undistort import pinhole_K
+    pinhole = (0.5 + 0.25 * np.sin(2 * np.pi * xs / 24.0) * np.cos(2 * np.pi * ys / 30.0)).astype(np.float32)
+    photo = distort_image(pinhole, K_r, rig)
+    half, covered = undistort(photo, K, rig.distortion, pinhole_K(K, 0.5), (160, 120))
+    small = cv2.resize(pinhole, (160, 120), interpolation=cv2.INTER_AREA)
+    inner = covered & np.pad(np.ones((96, 136), bool), 12)
+    assert np.abs(half - small)[inner].mean() < 0.01
+
+
+def distorted_photo():
+    """A 160x120 pinhole image (a smooth pattern, one channel) and the photograph (RGB) a
+    strongly distorting lens with an off-centre principal point makes of it."""
+    rig = Rig(width=160, height=120, focal_px=150.0, principal_offset_px=(3.0, -2.5),
+              distortion=(-0.25, 0.06, 0.002, -0.001, 0.0))
+    ys, xs = np.mgrid[:120, :160] + 0.5
+    pinhole = (0.5 + 0.3 * np.sin(2 * np.pi * xs / 16.0) * np.sin(2 * np.pi * ys / 19.0)).astype(np.float32)
+    return rig, pinhole, distort_image(np.repeat(pinhole[..., None], 3, axis=-1), rig.K(), rig)
+
+
+def test_nerfstudio_opencv_distortion_is_taken_out(tmp_path):
+    """nerfstudio's camera_model OPENCV with k1..p2: the loader undistorts through the same path."""
+    rig, pinhole, photo = distorted_photo()
+    K = rig.K()
+    os.makedirs(tmp_path / 'images')
+    cv2.imwrite(str(tmp_path / 'images' / 'a.png'), np.round(photo[..., ::-1] * 255).astype(np.uint8))
+    k1, k2, p1, p2, _ = rig.distortion
+    meta = {'camera_model': 'OPENCV', 'fl_x': K[0, 0], 'fl_y': K[1, 1], 'cx': K[0, 2], 'cy': K[1, 2],
+            'w': 160, 'h': 120, 'k1': k1, 'k2': k2, 'p1': p1, 'p2': p2,
+            'frames': [{'file_path': 'images/a.png', 'transform_matrix': np.eye(4).tolist()}]}
+    (tmp_path / 'transforms.json').write_text(json.dumps(meta))
+    ds = load_dataset(str(tmp_path), need_container=False)
+    inner = np.zeros((120, 160), bool)
+    inner[16:-16, 16:-16] = True
+    corrected = np.abs(ds.images[0, ..., 0] - pinhole)[inner].mean()
+    assert corrected < 0.01
+    # The same file read as a pinhole keeps the distortion.
+    meta['camera_model'] = 'PINHOLE'
+    for key in ('k1', 'k2', 'p1', 'p2'):
+        del meta[key]
+    (tmp_path / 'transforms.json').write_text(json.dumps(meta))
+    raw = load_dataset(str(tmp_path), need_container=False)
+    assert np.abs(raw.images[0, ..., 0] - pinhole)[inner].mean() > 4 * corrected
+
+
+def test_settings_from_the_capture_file_or_the_flags(tmp_path):
+    given = {'squares': '12x9', 'square_mm': 20, 'marker_mm': 15, 'size_mm': '50x35x25', 'ior': 1.5}
+    (tmp_path / settings.CAPTURE_FILE).write_text(json.dumps(given))
+    from_file = settings.resolve({}, str(tmp_path))
+    from_flags = settings.resolve({k: str(v) for k, v in given.items()}, str(tmp_path / 'none'))
+    assert from_file == from_flags
+    assert from_file.squares == (12, 9) and from_file.size_mm == (50.0, 35.0, 25.0)
+    # The same value twice is fine; a different one is refused.
+    assert settings.resolve({'ior': '1.5'}, str(tmp_path)).ior == 1.5
+    with pytest.raises(ValueError, match='contradicts'):
+        settings.resolve({'ior': '1.45'}, str(tmp_path))
+
+
+def test_colmap_model_read_and_undistorted(tmp_path):
+    """A COLMAP model written here (OPENCV camera, two posed images) becomes a dataset whose
+    cameras are the model's and whose images are undistorted."""
+    pycolmap = pytest.importorskip('pycolmap')
+    import trimesh
+    from reneus_mi.capture import colmap
+    from reneus_mi.data.cameras import look_at
+    rig, pinhole, photo = distorted_photo()
+    K = rig.K()
+    (tmp_path / 'images').mkdir()
+    model = pycolmap.Reconstruction()
+    camera = pycolmap.Camera.create_from_model_name(1, 'OPENCV', 150.0, 160, 120)
+    camera.params = [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *rig.distortion[:4]]
+    model.add_camera_with_trivial_rig(camera)
+    c2ws = [look_at([4.0, 1.0, 2.0]), look_at([-3.0, 3.0, 1.5])]
+    for i, c2w in enumerate(c2ws):
+        name = f'v{i}.png'
+        cv2.imwrite(str(tmp_path / 'images' / name), np.round(photo[..., ::-1] * 255).astype(np.uint8))
+        w2c = np.linalg.inv(c2w)
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
+        model.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=1, image_id=i + 1), pose)
+    (tmp_path / 'sparse').mkdir()
+    model.write_text(str(tmp_path / 'sparse'))
+    trimesh.creation.box(extents=(1.0, 0.8, 0.6)).export(tmp_path / 'box.ply')
+    assert colmap.main([str(tmp_path / 'sparse'), '--images', str(tmp_path / 'images'), '--container',
+                        str(tmp_path / 'box.ply'), '--ior', '1.5', '-o', str(tmp_path / 'ds')]) == 0
+    ds = load_dataset(str(tmp_path / 'ds'))
+    np.testing.assert_allclose(ds.c2w, np.stack(c2ws), atol=1e-6)
+    np.testing.assert_allclose(ds.K[0], K, atol=1e-9)
+    inner = np.zeros((120, 160), bool)
+    inner[16:-16, 16:-16] = True
+    assert np.abs(ds.images[0, ..., 0] - pinhole)[inner].mean() < 0.01
+    assert ds.ior == 1.5
