@@ -3,19 +3,25 @@
 Every writer of the package goes through :func:`atomic_path`: the data goes to
 a temporary file beside the target (same folder, so the rename is atomic; same
 extension, so writers that pick the format by extension still work), which is
-renamed over the target once complete, and removed if the write fails.
+renamed over the target once complete, and removed if the write fails. The
+temporary is created with the mode any new file gets (0666 less the umask: 0644
+under the usual 022), not ``tempfile``'s owner-only 0600, so that a team sharing
+a drive can read what a run wrote.
 """
 from __future__ import annotations
 
 import contextlib
 import json
 import os
-import tempfile
+import secrets
 import zipfile
 
 import numpy as np
 
 from reneus_mi.errors import ReneusError
+
+#: The name of every temporary of :func:`atomic_path` starts so (a kill may leave one behind).
+TEMPORARY_PREFIX = '.tmp-'
 
 
 @contextlib.contextmanager
@@ -24,8 +30,7 @@ def atomic_path(path: str | os.PathLike):
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix='.tmp-', suffix=os.path.splitext(path)[1])
-    os.close(fd)
+    tmp = _new_temporary(directory, os.path.splitext(path)[1])
     try:
         yield tmp
         os.replace(tmp, path)
@@ -33,6 +38,17 @@ def atomic_path(path: str | os.PathLike):
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def _new_temporary(directory: str, suffix: str) -> str:
+    """Create an empty, new temporary file in ``directory``; the umask sets its mode."""
+    while True:
+        tmp = os.path.join(directory, f'{TEMPORARY_PREFIX}{secrets.token_hex(6)}{suffix}')
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
 
 
 @contextlib.contextmanager
@@ -76,7 +92,7 @@ def atomic_export(mesh, path: str | os.PathLike) -> None:
 
 def is_temporary(name: str) -> bool:
     """Whether a file name is one of :func:`atomic_path`'s temporaries (left by a kill)."""
-    return os.path.basename(name).startswith('.tmp-')
+    return os.path.basename(name).startswith(TEMPORARY_PREFIX)
 
 
 def load_json(path: str | os.PathLike, what: str = 'file') -> dict:
