@@ -1,0 +1,120 @@
+"""A collection as one job (issue #19): three tiny specimens with the middle one broken on
+each engine, a SIGKILLed worker resumed exactly, two batches on one folder, permissions.
+
+The specimens are copies of the tiny statuette dataset (``tiny.py``), trained with the
+``tiny`` preset: seconds each, most of it starting the worker process.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from reneus_mi.batch import engines
+from reneus_mi.batch.collection import read_collection
+from reneus_mi.batch.folder import BatchFolder
+from reneus_mi.batch.runner import run_batch
+from reneus_mi.errors import ReneusError
+from tiny import assert_same_state, file_state
+
+#: The broken specimen's fault, and the one line its run must end with.
+BROKEN = "frames[0]: 'transform_matrix' must be a 4x4 matrix of numbers"
+
+
+@pytest.fixture(scope='module')
+def collection(scene_xml, tmp_path_factory):
+    """A folder of three datasets a, b, c; b's first camera is not a matrix."""
+    root = tmp_path_factory.mktemp('collection')
+    for name in 'abc':
+        shutil.copytree(os.path.join(os.path.dirname(scene_xml), 'box'), root / name)
+    meta = json.loads((root / 'b' / 'transforms.json').read_text())
+    meta['frames'][0]['transform_matrix'][0][0] = 'x'
+    (root / 'b' / 'transforms.json').write_text(json.dumps(meta))
+    return root
+
+
+def _engine(name, **options):
+    def make(configs, files_of, tasks):
+        return engines.make_engine(name, configs, files_of, tasks=tasks, **options)
+    return make
+
+
+@pytest.fixture
+def umask_022():
+    old = os.umask(0o022)
+    yield
+    os.umask(old)
+
+
+def _ray_engine(tmp_path):
+    ray = pytest.importorskip('ray', reason="the ray extra is not installed (pip install -e '.[test]')")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    return _engine('ray', cpus=1), ray.shutdown
+
+
+def _slurm_engine(tmp_path):
+    pytest.importorskip('submitit', reason="the slurm extra is not installed (pip install -e '.[test]')")
+    return _engine('slurm', cpus=1, slurm_cluster='local', slurm_folder=str(tmp_path / 'runs' / '_batch' / 'slurm'),
+                   ), lambda: None
+
+
+ENGINES = {'local': lambda tmp_path: (_engine('local', workers=2, threads=1), lambda: None),
+           'ray': _ray_engine, 'slurm': _slurm_engine}
+
+
+@pytest.mark.parametrize('engine', list(ENGINES))
+def test_the_broken_specimen_fails_alone(engine, collection, tmp_path, umask_022):
+    """On each engine: b fails with its one-line reason, a and c finish with their figures;
+    every file is readable by the group; the next batch retries b and leaves a and c."""
+    make, close = ENGINES[engine](tmp_path)
+    runs = tmp_path / 'runs'
+    specimens = read_collection(str(collection), preset='tiny')
+    try:
+        states = run_batch(specimens, str(runs), make, say=lambda _: None)
+    finally:
+        close()
+    assert states['a'] == states['c'] == 'finished'
+    assert states['b'].startswith('failed (') and BROKEN in states['b'] and '\n' not in states['b']
+    rows = {r['name']: r for r in _summary(runs)}
+    for name in 'ac':
+        result = json.loads((runs / name / 'result.json').read_text())
+        assert result['iterations'] == 6 and (runs / name / 'mesh.ply').is_file()
+        r = rows[name]
+        assert (r['state'], int(r['iterations'])) == ('finished', 6)
+        assert 5.0 < float(r['psnr']) < 40.0 and float(r['wall_s']) > 0
+        # The dataset has a ground truth: a Chamfer distance, the same as one computed here.
+        assert float(r['chamfer']) == pytest.approx(_chamfer(runs / name / 'mesh.ply', collection / name), abs=1e-4)
+        assert (runs / r['preview']).is_file() and r['mesh'] == f'{name}/mesh.ply'
+    assert rows['b']['state'] == 'failed' and BROKEN in rows['b']['reason']
+    assert 'a/mesh.ply' in (runs / 'summary.html').read_text()
+    modes = {os.path.relpath(os.path.join(d, f), runs): os.stat(os.path.join(d, f)).st_mode & 0o777
+             for d, _, files in os.walk(runs) for f in files}
+    assert {m for p, m in modes.items() if not p.startswith('_batch/slurm')} == {0o644}, modes
+    if engine != 'local':
+        return
+    # Again: b is retried, a and c are not touched.
+    stamps = {n: os.path.getmtime(runs / n / 'checkpoint.npz') for n in 'ac'}
+    states = run_batch(specimens, str(runs), make, say=lambda _: None)
+    assert BROKEN in states['b'] and len(BatchFolder(runs).specimen('b').read_attempts()) == 2
+    assert {n: os.path.getmtime(runs / n / 'checkpoint.npz') for n in 'ac'} == stamps
+    assert [len(BatchFolder(runs).specimen(n).read_attempts()) for n in 'ac'] == [1, 1]
+
+
+def _summary(runs):
+    import csv
+    with open(runs / 'summary.csv') as f:
+        return list(csv.DictReader(f))
+
+
+def _chamfer(mesh, data):
+    from reneus_mi.data import load_dataset
+    from reneus_mi.geometry.chamfer import chamfer
+    from reneus_mi.geometry.mesh import load_mesh
+    return chamfer(load_mesh(mesh), load_mesh(load_dataset(str(data)).gt_mesh))['chamfer']
