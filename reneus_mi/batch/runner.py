@@ -51,67 +51,79 @@ def run_batch(specimens: list[Specimen], root: str, make_engine: Callable, *, re
     """Run ``specimens`` in ``root/<name>`` on the engine ``make_engine(configs, files_of,
     tasks)`` returns; ``redo``: names (or ``'all'``) of runs to start over. Returns each
     specimen's state when the batch ends."""
-    from reneus_mi.config import with_settings
-    from reneus_mi.presets import preset
     batch = check_folder(root, specimens)
     redo = {s.name for s in specimens} if 'all' in redo else set(redo)
     unknown = sorted(redo - {s.name for s in specimens})
     if unknown:
         raise ReneusError(f"--redo {', '.join(unknown)}: not in the collection; expected names of its specimens")
     os.makedirs(batch.work, exist_ok=True)
-    with batch.lock():
-        atomic_write_text(batch.collection, json.dumps([s.to_dict() for s in specimens], indent=2))
-        counts = {'finished': 0, 'failed': 0, 'running': 0, 'left': 0, 'busy': 0}
-        todo = []
-        for s in specimens:
-            state = batch.run(s.name).state()
-            if state.name == 'finished' and s.name not in redo:
-                counts['finished'] += 1
-            elif state.name == 'running':
-                counts['busy'] += 1
-                say(f'{s.name}: left alone: {state.reason} drives it')
-            else:
-                todo.append(s)
-        counts['left'] = len(todo)
-        summary.write(batch, specimens)
-        if not todo:
-            say(summary.progress_line(counts, time.monotonic(), 0))
-            return _states(batch, specimens)
-        configs = [with_settings(preset(s.preset), s.settings)[0] for s in todo]
-        engine = make_engine(configs, batch.specimen, len(todo))
-        say(f'{len(todo)} run(s) on {engine.describe()}; summary in {batch.summary_html}')
-        started, ended = time.monotonic(), 0
-        tasks = [{'specimen': s.to_dict(), 'root': batch.path, 'threads': engine.threads,
-                  'variant': engine.variant, 'redo': s.name in redo, 'engine': engine.name} for s in todo]
-        try:
-            while tasks or engine.running():
-                free = engine.free()
-                taken, tasks = tasks[:free], tasks[free:]
-                engine.submit(taken)
-                counts['left'] -= len(taken)
-                counts['running'] += len(taken)
-                if taken:
-                    say(summary.progress_line(counts, started, ended))
-                done = engine.wait(HEARTBEAT)
-                for task, outcome in done:
-                    name = task['specimen']['name']
-                    counts['running'] -= 1
-                    state = _settle(batch, name, outcome, engine.name)
-                    counts[state.name if state.name in ('finished', 'failed') else
-                           'busy' if state.name == 'running' else 'left'] += 1
-                    ended += 1
-                    say(f'{name}: {state}')
-                if done:
-                    summary.write(batch, specimens)
+    lock = batch.lock()
+    try:
+        lock.acquire()
+    except ReneusError:
+        raise ReneusError(f'{batch.path}: another batch ({lock.owner() or "a process"}) drives it; '
+                          'expected one batch per folder: wait for it, or choose another -o') from None
+    try:
+        return _drive(batch, specimens, make_engine, redo, say)
+    finally:
+        lock.release()
+
+
+def _drive(batch, specimens, make_engine, redo, say) -> dict[str, str]:
+    from reneus_mi.config import with_settings
+    from reneus_mi.presets import preset
+    atomic_write_text(batch.collection, json.dumps([s.to_dict() for s in specimens], indent=2))
+    counts = {'finished': 0, 'failed': 0, 'running': 0, 'left': 0, 'busy': 0}
+    todo = []
+    for s in specimens:
+        state = batch.run(s.name).state()
+        if state.name == 'finished' and s.name not in redo:
+            counts['finished'] += 1
+        elif state.name == 'running':
+            counts['busy'] += 1
+            say(f'{s.name}: left alone: {state.reason} drives it')
+        else:
+            todo.append(s)
+    counts['left'] = len(todo)
+    summary.write(batch, specimens)
+    if not todo:
+        say(summary.progress_line(counts, time.monotonic(), 0))
+        return _states(batch, specimens)
+    configs = [with_settings(preset(s.preset), s.settings)[0] for s in todo]
+    engine = make_engine(configs, batch.specimen, len(todo))
+    say(f'{len(todo)} run(s) on {engine.describe()}; summary in {batch.summary_html}')
+    started, ended = time.monotonic(), 0
+    tasks = [{'specimen': s.to_dict(), 'root': batch.path, 'threads': engine.threads,
+              'variant': engine.variant, 'redo': s.name in redo, 'engine': engine.name} for s in todo]
+    try:
+        while tasks or engine.running():
+            free = engine.free()
+            taken, tasks = tasks[:free], tasks[free:]
+            engine.submit(taken)
+            counts['left'] -= len(taken)
+            counts['running'] += len(taken)
+            if taken:
                 say(summary.progress_line(counts, started, ended))
-        except KeyboardInterrupt:
-            say('interrupted: the runs write their checkpoints; run the batch again to continue')
-            engine.close()
-            summary.write(batch, specimens)
-            raise
+            done = engine.wait(HEARTBEAT)
+            for task, outcome in done:
+                name = task['specimen']['name']
+                counts['running'] -= 1
+                state = _settle(batch, name, outcome, engine.name)
+                counts[state.name if state.name in ('finished', 'failed') else
+                       'busy' if state.name == 'running' else 'left'] += 1
+                ended += 1
+                say(f'{name}: {state}')
+            if done:
+                summary.write(batch, specimens)
+            say(summary.progress_line(counts, started, ended))
+    except KeyboardInterrupt:
+        say('interrupted: the runs write their checkpoints; run the batch again to continue')
         engine.close()
         summary.write(batch, specimens)
-        return _states(batch, specimens)
+        raise
+    engine.close()
+    summary.write(batch, specimens)
+    return _states(batch, specimens)
 
 
 def _settle(batch, name: str, outcome: dict, engine: str):

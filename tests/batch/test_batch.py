@@ -14,14 +14,12 @@ import subprocess
 import sys
 import time
 
-import numpy as np
 import pytest
 
 from reneus_mi.batch import engines
 from reneus_mi.batch.collection import read_collection
 from reneus_mi.batch.folder import BatchFolder
 from reneus_mi.batch.runner import run_batch
-from reneus_mi.errors import ReneusError
 from tiny import assert_same_state, file_state
 
 #: The broken specimen's fault, and the one line its run must end with.
@@ -118,3 +116,90 @@ def _chamfer(mesh, data):
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh
     return chamfer(load_mesh(mesh), load_mesh(load_dataset(str(data)).gt_mesh))['chamfer']
+
+
+def _manifest(tmp_path, collection, rows) -> str:
+    path = tmp_path / 'manifest.json'
+    path.write_text(json.dumps([dict(row, data=str(collection / row['data'])) for row in rows]))
+    return str(path)
+
+
+def _batch_process(manifest, runs, *options) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, '-m', 'reneus_mi.batch', manifest, '-o', str(runs), '--preset', 'tiny',
+                             '--workers', '1', '--threads', '1', *options],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(test, timeout=120.0, what=''):
+    end = time.monotonic() + timeout
+    while not test():
+        assert time.monotonic() < end, f'timed out waiting for {what}'
+        time.sleep(0.01)
+
+
+#: A run long enough to be caught in the middle, checkpointed every step.
+LONG = {'train.iterations': 40, 'train.checkpoint_every': 1}
+
+
+def test_a_killed_worker_is_resumed_exactly(collection, tmp_path):
+    """SIGKILL the worker mid-run: the batch records why and when, and the next batch resumes
+    the run from its checkpoint to the same state, bit for bit (one thread), as a run never
+    killed."""
+    manifest = _manifest(tmp_path, collection, [dict(name='a', data='a', **LONG)])
+    runs, whole = tmp_path / 'runs', tmp_path / 'whole'
+    proc = _batch_process(manifest, runs)
+    log = runs / 'a' / 'log.jsonl'
+    _wait_for(lambda: log.is_file() and len(log.read_text().splitlines()) >= 5, what='five steps')
+    worker = int((runs / 'a' / '.lock').read_text().split()[0])
+    os.kill(worker, signal.SIGKILL)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1, err
+    step = json.loads((runs / 'a' / 'result.json').read_text())['iterations']
+    reason = f'worker killed by SIGKILL at step {step}; the next batch resumes it from its checkpoint'
+    assert f'a: failed ({reason})' in out and 5 <= step < 40
+    before = log.read_text().splitlines()
+    proc = _batch_process(manifest, runs)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0 and 'a: finished' in out, (out, err)
+    proc = _batch_process(manifest, whole)
+    assert proc.communicate(timeout=120) and proc.returncode == 0
+    assert_same_state(file_state(whole / 'a' / 'checkpoint.npz'), file_state(runs / 'a' / 'checkpoint.npz'),
+                      exact=True)
+    after = log.read_text().splitlines()
+    assert [json.loads(line)['iteration'] for line in after] == list(range(1, 41))
+    # Resumed, not started over: the steps before the checkpoint were not run again (each
+    # line holds its step's own timing).
+    assert after[:step - 1] == before[:step - 1]
+    attempts = BatchFolder(runs).specimen('a').read_attempts()
+    assert [a['outcome'] for a in attempts] == ['failed', 'finished'] and attempts[0]['reason'] == reason
+
+
+_HOLD = """
+import sys, time
+from reneus_mi.train.run_folder import RunFolder
+with RunFolder(sys.argv[1]).lock():
+    print('holding', flush=True)
+    time.sleep(600)
+"""
+
+
+def test_two_batches_never_share_a_run(collection, tmp_path):
+    """Two batches started together on one folder: one drives it, the other refuses; a run
+    another process holds (an optimize by hand) is left alone by both."""
+    manifest = _manifest(tmp_path, collection, [dict(name='a', data='a', **LONG), dict(name='c', data='c')])
+    runs = tmp_path / 'runs'
+    holder = subprocess.Popen([sys.executable, '-c', _HOLD, str(runs / 'c')], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline() == 'holding\n'
+        first, second = _batch_process(manifest, runs), _batch_process(manifest, runs)
+        outs = [p.communicate(timeout=180) for p in (first, second)]
+    finally:
+        holder.kill()
+        holder.wait()
+    refused = [err for out, err in outs if 'another batch' in err]
+    assert len(refused) == 1, outs
+    assert f'{runs}: another batch (process ' in refused[0] and refused[0].count('\n') == 1
+    driven = next(out for out, err in outs if 'another batch' not in err)
+    assert 'a: finished' in driven and f'c: left alone: process {holder.pid} drives it' in driven
+    assert len(BatchFolder(runs).specimen('a').read_attempts()) == 1
+    assert os.listdir(runs / 'c') == ['.lock'] and not os.path.exists(BatchFolder(runs).specimen('c').path)
