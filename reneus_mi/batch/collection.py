@@ -21,9 +21,10 @@ column              what
 ``train.iterations`` any setting by its dotted path, as ``--set`` takes it
 =================== ==========================================================
 
-An empty cell gives nothing. Everything a manifest says is checked when it
-is read (a typo stops the batch before any run); whether each specimen's data
-is good is found out by its own run, which fails alone.
+An empty cell gives nothing. The names, presets and settings are checked when
+the manifest is read (a typo stops the batch before any run); a specimen's
+data, its capture settings included, is checked by its own run, which fails
+alone.
 """
 from __future__ import annotations
 
@@ -193,7 +194,6 @@ def _text(value) -> str:
 
 def _checked(s: Specimen, where: str) -> Specimen:
     """``s`` once its name, preset and settings are known good (its data is its run's to check)."""
-    from reneus_mi.capture import settings as capture_settings
     from reneus_mi.config import with_settings
     from reneus_mi.presets import preset
     from reneus_mi.batch.folder import RESERVED
@@ -207,10 +207,4 @@ def _checked(s: Specimen, where: str) -> Specimen:
     if s.capture and s.kind != 'capture':
         raise ReneusError(f"{where}: capture settings ({', '.join(s.capture)}) for {s.data}, which is not a "
                           'capture folder (photographs and capture.json)')
-    if s.kind == 'capture':
-        given = dict(s.capture, **({'ior': s.ior} if s.ior is not None else {}))
-        try:
-            capture_settings.resolve(given, s.data)
-        except ReneusError as e:
-            raise ReneusError(f'{where}: {e}') from None
     return s

@@ -104,9 +104,9 @@ def prepare(specimen, files):
     if specimen.kind == 'capture':
         data = files.dataset
         if not os.path.isfile(os.path.join(data, 'transforms.json')):
-            from reneus_mi.capture import command, settings
+            from reneus_mi.capture import pipeline, settings
             given = dict(specimen.capture, **({'ior': specimen.ior} if specimen.ior is not None else {}))
-            command.run(settings.resolve(given, specimen.data), specimen.data, data, quiet=True)
+            pipeline.run(settings.resolve(given, specimen.data), specimen.data, data)
     elif not os.path.isdir(data):
         from reneus_mi.errors import ReneusError
         raise ReneusError(f'{data}: dataset folder does not exist')

@@ -17,6 +17,8 @@ from reneus_mi.io import atomic_path
 
 #: Vertical field of view of the preview camera (degrees).
 FOV = 30.0
+#: The mesh's bounding sphere spans the frame's height divided by this.
+MARGIN = 1.05
 
 
 def render_preview(mesh_path: str, out: str, *, direction=(1.0, -1.0, 0.8), up=(0.0, 0.0, 1.0),
@@ -40,8 +42,7 @@ def render_preview(mesh_path: str, out: str, *, direction=(1.0, -1.0, 0.8), up=(
     up = np.asarray(up, float)
     if np.linalg.norm(np.cross(d, up)) < 1e-6 * np.linalg.norm(up):
         raise ReneusError(f'preview of {mesh_path}: up={tuple(up)} lies along the view direction')
-    # The bounding sphere fills the frame.
-    distance = radius / np.sin(np.radians(FOV / 2)) * 1.05
+    distance = radius / np.sin(np.radians(FOV / 2)) * MARGIN
     eye = centre + d * distance
     key = d + np.cross(up, d) / np.linalg.norm(np.cross(up, d)) * 0.6 + up / np.linalg.norm(up) * 0.8
     scene = mi.load_dict({
