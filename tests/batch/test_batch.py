@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from reneus_mi.batch import engines
@@ -103,6 +104,11 @@ def test_the_broken_specimen_fails_alone(engine, collection, tmp_path, umask_022
     assert BROKEN in states['b'] and len(BatchFolder(runs).specimen('b').read_attempts()) == 2
     assert {n: os.path.getmtime(runs / n / 'checkpoint.npz') for n in 'ac'} == stamps
     assert [len(BatchFolder(runs).specimen(n).read_attempts()) for n in 'ac'] == [1, 1]
+    # Asked to: a starts over, c is left.
+    states = run_batch(specimens, str(runs), make, redo=['a'], say=lambda _: None)
+    assert states['a'] == 'finished' and os.path.getmtime(runs / 'c' / 'checkpoint.npz') == stamps['c']
+    assert [len(BatchFolder(runs).specimen(n).read_attempts()) for n in 'ac'] == [2, 1]
+    assert len((runs / 'a' / 'log.jsonl').read_text().splitlines()) == 6
 
 
 def _summary(runs):
@@ -186,7 +192,7 @@ with RunFolder(sys.argv[1]).lock():
 def test_two_batches_never_share_a_run(collection, tmp_path):
     """Two batches started together on one folder: one drives it, the other refuses; a run
     another process holds (an optimize by hand) is left alone by both."""
-    manifest = _manifest(tmp_path, collection, [dict(name='a', data='a', **LONG), dict(name='c', data='c')])
+    manifest = _manifest(tmp_path, collection, [dict(name='a', data='a', ior=1.52, **LONG), dict(name='c', data='c')])
     runs = tmp_path / 'runs'
     holder = subprocess.Popen([sys.executable, '-c', _HOLD, str(runs / 'c')], stdout=subprocess.PIPE, text=True)
     try:
@@ -202,4 +208,31 @@ def test_two_batches_never_share_a_run(collection, tmp_path):
     driven = next(out for out, err in outs if 'another batch' not in err)
     assert 'a: finished' in driven and f'c: left alone: process {holder.pid} drives it' in driven
     assert len(BatchFolder(runs).specimen('a').read_attempts()) == 1
+    # The manifest's IOR is the scene's.
+    assert 'name="int_ior" value="1.52"' in open(BatchFolder(runs).specimen('a').scene).read()
     assert os.listdir(runs / 'c') == ['.lock'] and not os.path.exists(BatchFolder(runs).specimen('c').path)
+
+
+@pytest.mark.slow
+def test_capture_folders(simulated_capture, tmp_path):
+    """A capture folder (photographs and capture.json) becomes a dataset in the batch's folder
+    and then a run whose mesh is in the board's millimetres, inside the container; a capture
+    whose capture.json lacks a setting fails alone, naming it."""
+    drawer = tmp_path / 'drawer'
+    shutil.copytree(simulated_capture['photos'], drawer / 'moth')
+    shutil.copytree(simulated_capture['photos'], drawer / 'wasp')
+    settings = json.loads((drawer / 'wasp' / 'capture.json').read_text())
+    del settings['size_mm']
+    (drawer / 'wasp' / 'capture.json').write_text(json.dumps(settings))
+    runs = tmp_path / 'runs'
+    states = run_batch(read_collection(str(drawer), preset='tiny'), str(runs), _engine('local', workers=1),
+                       say=lambda _: None)
+    assert states['moth'] == 'finished' and 'size_mm is not given' in states['wasp']
+    files = BatchFolder(runs).specimen('moth')
+    report = json.loads(open(os.path.join(files.dataset, 'report.json')).read())
+    assert len(report['views']) == len(simulated_capture['meta']['views'])
+    import trimesh
+    (x, y, _), (w, d, _) = simulated_capture['meta']['container']['pose'], simulated_capture['meta']['container']['size_mm']
+    centre = trimesh.load(runs / 'moth' / 'mesh.ply').bounds.mean(axis=0)
+    assert np.hypot(centre[0] - x, centre[1] - y) < 0.5 * min(w, d), centre
+    assert os.path.isfile(files.preview)
