@@ -68,6 +68,8 @@ def run(args) -> dict[str, str]:
     from reneus_mi.batch.collection import read_collection
     from reneus_mi.batch.folder import BatchFolder
     from reneus_mi.batch.runner import run_batch
+    engines.check_options(args.engine, device=args.device, workers=args.workers, threads=args.threads,
+                          cpus=args.cpus_per_run, minutes=args.time, max_parallel=args.max_parallel)
     with warnings.catch_warnings():
         warnings.simplefilter('always')
         warnings.showwarning = lambda message, *_, **__: print(f'warning: {message}', file=sys.stderr)

@@ -360,6 +360,19 @@ def one_line_of(e: BaseException) -> str:
     return lines[-1] if lines else type(e).__name__
 
 
+def check_options(name: str, *, device: str = 'auto', workers=None, threads=None, cpus=None, minutes=None,
+                  max_parallel=None) -> None:
+    """Refuse, in one line, an engine's option that no engine could use."""
+    for value, label in ((workers, '--workers'), (threads, '--threads'), (cpus, '--cpus-per-run'),
+                         (max_parallel, '--max-parallel'), (minutes, '--time')):
+        if value is not None and not value > 0:
+            raise ReneusError(f'{label} {value:g}: expected a positive number')
+    if name not in ENGINES:
+        raise ReneusError(f"--engine {name!r}: expected one of {', '.join(ENGINES)}")
+    if device not in DEVICES:
+        raise ReneusError(f"--device {device!r}: expected one of {', '.join(DEVICES)}")
+
+
 def make_engine(name: str, configs, files_of, *, tasks: int, device: str = 'auto', workers: int | None = None,
                 threads: int | None = None, cpus: int | None = None, minutes: float | None = None,
                 ray_address: str | None = None, partition: str | None = None, max_parallel: int | None = None,
@@ -374,14 +387,8 @@ def make_engine(name: str, configs, files_of, *, tasks: int, device: str = 'auto
     :data:`CORES_PER_RUN`), a GPU with ``device='gpu'`` (Ray's ``auto``: when the
     cluster has GPUs), memory and time from the preset (``minutes`` overrides the time).
     """
-    for value, label in ((workers, '--workers'), (threads, '--threads'), (cpus, '--cpus-per-run'),
-                         (max_parallel, '--max-parallel'), (minutes, '--time')):
-        if value is not None and not value > 0:
-            raise ReneusError(f'{label} {value}: expected a positive number')
-    if name not in ENGINES:
-        raise ReneusError(f"--engine {name!r}: expected one of {', '.join(ENGINES)}")
-    if device not in DEVICES:
-        raise ReneusError(f"--device {device!r}: expected one of {', '.join(DEVICES)}")
+    check_options(name, device=device, workers=workers, threads=threads, cpus=cpus, minutes=minutes,
+                  max_parallel=max_parallel)
     if name == 'ray':
         return RayEngine(configs, address=ray_address, device=device, cpus=cpus)
     if name == 'slurm':

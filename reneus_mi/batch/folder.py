@@ -37,34 +37,22 @@ SUMMARY_CSV, SUMMARY_HTML = 'summary.csv', 'summary.html'
 RESERVED = (WORK, SUMMARY_CSV, SUMMARY_HTML)
 
 
+def _in(*names: str) -> property:
+    """The path ``names`` below the folder's ``path``."""
+    return property(lambda self: os.path.join(self.path, *names))
+
+
 @dataclass(frozen=True)
 class SpecimenFiles:
     """What the batch keeps for one specimen beside its run folder."""
     path: str
 
-    @property
-    def scene(self) -> str:
-        return os.path.join(self.path, 'scene.xml')
-
-    @property
-    def dataset(self) -> str:
-        return os.path.join(self.path, 'dataset')
-
-    @property
-    def preview(self) -> str:
-        return os.path.join(self.path, 'preview.png')
-
-    @property
-    def metrics(self) -> str:
-        return os.path.join(self.path, 'metrics.json')
-
-    @property
-    def attempts(self) -> str:
-        return os.path.join(self.path, 'attempts.jsonl')
-
-    @property
-    def worker_log(self) -> str:
-        return os.path.join(self.path, 'worker.log')
+    scene = _in('scene.xml')
+    dataset = _in('dataset')
+    preview = _in('preview.png')
+    metrics = _in('metrics.json')
+    attempts = _in('attempts.jsonl')
+    worker_log = _in('worker.log')
 
     def read_metrics(self) -> dict:
         return _read_json(self.metrics) or {}
@@ -96,25 +84,11 @@ class BatchFolder:
     def __post_init__(self):
         object.__setattr__(self, 'path', os.path.abspath(os.fspath(self.path)))
 
-    @property
-    def work(self) -> str:
-        return os.path.join(self.path, WORK)
-
-    @property
-    def summary_csv(self) -> str:
-        return os.path.join(self.path, SUMMARY_CSV)
-
-    @property
-    def summary_html(self) -> str:
-        return os.path.join(self.path, SUMMARY_HTML)
-
-    @property
-    def collection(self) -> str:
-        return os.path.join(self.work, 'collection.json')
-
-    @property
-    def slurm(self) -> str:
-        return os.path.join(self.work, 'slurm')
+    work = _in(WORK)
+    summary_csv = _in(SUMMARY_CSV)
+    summary_html = _in(SUMMARY_HTML)
+    collection = _in(WORK, 'collection.json')
+    slurm = _in(WORK, 'slurm')
 
     def lock(self) -> RunLock:
         """The batch's lock: one batch process drives a batch folder."""

@@ -72,6 +72,9 @@ def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
         return 'skipped', 'finished before'
     if redo:
         _clear(folder)
+    for stale in (files.preview, files.metrics):   # they describe the mesh this attempt replaces
+        if os.path.isfile(stale):
+            os.unlink(stale)
     try:
         spec = prepare(specimen, files)
         if os.path.isfile(folder.config) and not runs.read_spec(folder.path).same_run(spec):
@@ -138,8 +141,6 @@ def measure(spec, mesh_path: str, files) -> dict:
         c2w = ds.c2w[0]
         render_preview(mesh_path, files.preview, direction=c2w[:3, 3] - mesh.bounds.mean(axis=0),
                        up=-c2w[:3, 1])
-    elif os.path.isfile(files.preview):
-        os.unlink(files.preview)
     atomic_write_text(files.metrics, json.dumps(metrics, indent=2))
     return metrics
 

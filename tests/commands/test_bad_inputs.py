@@ -847,3 +847,31 @@ def test_resume_with_moved_data(world, run_copy, tmp_path):
     shutil.copytree(world['data'], moved)
     assert optimize.main(['-o', str(run_copy), '--resume', '--quiet', '--data', str(moved)]) == 0
     assert json.loads((run_copy / 'config.json').read_text())['data'] == str(moved)
+
+
+# ======================================================================== batch
+def test_batch_output_inside_a_dataset(data):
+    from reneus_mi.batch.__main__ import main
+    refused(main, [data.parent, '-o', data / 'runs'], 'lies in the dataset folder', watch=[data.parent])
+
+
+def test_batch_output_holding_other_files(data, tmp_path):
+    from reneus_mi.batch.__main__ import main
+    (tmp_path / 'runs').mkdir()
+    (tmp_path / 'runs' / 'mine.txt').write_text('keep')
+    refused(main, [data.parent, '-o', tmp_path / 'runs'], 'batch folder', 'holds mine.txt', watch=[tmp_path])
+
+
+@pytest.mark.parametrize('args, expected', [
+    (['--redo', 'zz'], ('--redo zz: not in the collection',)),
+    (['--workers', '0'], ('--workers 0: expected a positive number',)),
+    (['--set', 'train.iterations=many'], ("train.iterations='many': expected an integer",)),
+])
+def test_batch_options(data, tmp_path, args, expected):
+    from reneus_mi.batch.__main__ import main
+    refused(main, [data.parent, '-o', tmp_path / 'runs', *args], *expected, watch=[tmp_path])
+
+
+def test_batch_of_one_dataset(data, tmp_path):
+    from reneus_mi.batch.__main__ import main
+    refused(main, [data, '-o', tmp_path / 'runs'], 'is one specimen', watch=[tmp_path])
