@@ -26,15 +26,14 @@ import sys
 import time
 import traceback
 
-#: Outcomes of a task, as :func:`run_task` returns them in ``outcome``.
-OUTCOMES = ('finished', 'failed', 'busy', 'skipped')
 #: The local worker's exit status when the run is held by another process.
 EXIT_BUSY = 75
 
 
 def run_task(task: dict) -> dict:
     """Run one specimen (see the module docstring); returns ``{'name', 'outcome', 'reason',
-    'seconds'}``."""
+    'seconds'}``, the outcome one of finished, failed, busy (another process holds the run)
+    and skipped (finished before)."""
     import drjit as dr
     from reneus_mi.batch.collection import Specimen
     from reneus_mi.batch.folder import BatchFolder
