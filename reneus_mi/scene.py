@@ -16,7 +16,7 @@ import warnings
 from reneus_mi import guards
 from reneus_mi.data import load_dataset
 from reneus_mi.data.scene_xml import write_scene
-from reneus_mi.errors import exit_on_error
+from reneus_mi.errors import ReneusError, exit_on_error
 
 
 def _literal(text: str) -> bool | int | float | str:
@@ -74,9 +74,15 @@ def main(argv: list[str] | None = None) -> int:
                     parser.error(f'--set {text!r}: expected NAME=VALUE')
                 settings[name] = _literal(value)
         ds = load_dataset(args.data_dir, need_container=False)
+        if ds.container is None and args.integrator == 'reneus' and settings.get('mode', 'neus') != 'neus':
+            raise ReneusError(f"{args.data_dir}: dataset names no container mesh (no 'mesh_outside'), "
+                              f"but --set model.render.mode={settings['mode']} traces one; expected a "
+                              'dataset with its container, or mode neus')
         if ds.container is None:
-            warnings.warn(f"{args.data_dir}: dataset names no container mesh; "
-                          "the scene has none")
+            warnings.warn(f"{args.data_dir}: dataset names no container mesh; the scene has none"
+                          + (' and renders plain NeuS (mode neus)' if args.integrator == 'reneus' else ''))
+            if args.integrator == 'reneus':
+                settings['mode'] = 'neus'
         write_scene(ds, args.output, integrator=args.integrator, board=args.board == 'scene',
                     overwrite=args.overwrite, **settings)
     return 0
