@@ -104,8 +104,8 @@ def test_scene_board_is_the_photographed_one(made, tmp_path):
     """The board that ``python -m reneus_mi.scene`` puts under the container (from the dataset's
     pattern, geometry and measured print levels) is what the photographs show: around the
     block, and through its bottom. Measured (view 3): 0.017 around it (JPEG, noise, blur);
-    in the glass a median of 0.037 (the insect, the path tracers' noise) where the board taken
-    as ambient light gives 0.35."""
+    in the glass a median of 0.048 (the insect, the path tracers' noise) where the board taken
+    as ambient light gives 0.24."""
     from reneus_mi import scene as scene_command
     ds = load_dataset(str(made['out']))
     view = 3
@@ -123,9 +123,12 @@ def test_scene_board_is_the_photographed_one(made, tmp_path):
     assert error['scene'][1] < 0.06 and error['ambient'][1] > 3 * error['scene'][1]
 
 
-#: The short reconstruction from the capture: steps of BATCH rays of the fast preset (at 100
-#: steps the field had no surface yet: the first sphere goes before the insect comes).
-STEPS, BATCH = 200, 512
+#: The short reconstruction from the capture: STEPS steps of BATCH rays of the fast preset,
+#: meshed at MESH_RESOLUTION, as short as the claim allows. Chamfer-L1 with the board in the
+#: scene, against 3.54 mm for the sphere: 3.48 mm at 110 steps (the first sphere goes before
+#: the insect comes), 2.64 at 140, 2.52 at 150, 2.37 at 200. A step costs about as much at
+#: 256 rays as at 512 (200 x 256: 2.54 mm in the time of 140 x 512).
+STEPS, BATCH, MESH_RESOLUTION = 150, 512, 96
 
 
 @pytest.fixture(scope='module')
@@ -149,7 +152,7 @@ def reconstructed(shot, made, tmp_path_factory):
         spec = runs.spec_of_scene(xml, None)
         spec.config = replace(spec.config, **{'train.iterations': STEPS, 'train.batch_rays': BATCH,
                                               'train.validate_every': 0, 'train.checkpoint_every': 0,
-                                              'train.mesh_resolution': 128})
+                                              'train.mesh_resolution': MESH_RESOLUTION})
         if board:
             initial = runs.make_trainer(spec, str(folder / 'initial')).write_mesh(str(folder / 'initial.ply'))
             out['sphere'] = chamfer(initial, truth)['chamfer'] / 100.0
@@ -163,8 +166,9 @@ def reconstructed(shot, made, tmp_path_factory):
 def test_reconstruction_from_the_photographs_in_millimetres(reconstructed):
     """From JPEGs with no poses to a mesh in millimetres that beats the initial sphere and the
     same run with the board taken as ambient light, which paints the print seen through the
-    block's bottom onto fake walls. Measured: sphere 3.55 mm, board as ambient 14.3 mm, board in
-    the scene 2.36 mm."""
+    block's bottom onto fake walls. The calibration and the container it starts from are checked
+    above against the issue's tolerances. Measured: sphere 3.54 mm, board as ambient 15.1 mm,
+    board in the scene 2.52 mm."""
     r = reconstructed
     print(f"Chamfer-L1 (mm): initial sphere {r['sphere']:.2f}, board as ambient {r['ambient']:.2f}, "
           f"board in the scene {r['board']:.2f}")
