@@ -65,26 +65,34 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     ReNeuS's hybrid renderer: ray tracing through a transparent container,
     NeuS volume rendering inside it.
 
-    The scene's shapes must all carry a smooth ``dielectric`` BSDF: together
-    they are the container, and its IOR is the BSDF's η. A mesh bends light by
+    The scene's shapes with a smooth ``dielectric`` BSDF are together the
+    container, and its IOR is the BSDF's η. A mesh bends light by
     shading normals that follow its geometry, however its file was written: flat
     across edges sharper than ``crease_angle``, smooth elsewhere (the file's stored
     normals where it has them; :mod:`reneus_mi.geometry.container`). The scene's
     environment emitter (usually ``constant``, 0.8 in the paper) is the ambient
-    light C_out. Inside the container lives a field (:mod:`reneus_mi.fields`):
-    an SDF with a radiance, rendered with NeuS's unbiased weights.
+    light C_out. Shapes with an ``area`` emitter are the backdrop (beyond the
+    paper: the printed board the container stands on, which ``python -m
+    reneus_mi.scene`` writes for a capture): a ray that leaves the container and
+    meets one takes its emission instead of C_out, as Mitsuba's ``path`` sees it
+    (give a backdrop a black BSDF for ``path`` to agree; reneus never reflects off
+    it). Any other shape is an error. Inside the container lives a field
+    (:mod:`reneus_mi.fields`): an SDF with a radiance, rendered with NeuS's
+    unbiased weights.
 
     Each camera ray is traced: at every interface hit both the reflected and
     the refracted ray are followed, weighted by the unpolarised Fresnel
     reflectance R and by 1 - R (total internal reflection gives R = 1). A ray
     segment inside the container is volume rendered; its transmittance T_ℓ
-    multiplies whatever lies beyond it. A ray that leaves takes the ambient.
+    multiplies whatever lies beyond it. A ray that leaves takes the backdrop it
+    meets, or the ambient.
 
     **Depth.** ``max_depth`` = D_re counts interface events. A ray created by
     the D-th event is still followed to the next surface: if it escapes it
-    takes the ambient, if it is inside its segment is volume rendered. What
+    takes the backdrop or the ambient, if it is inside its segment is volume rendered. What
     lies beyond the surface that ends it is ``terminal``: with ``ambient`` (the
-    default) the ambient radiance, attenuated by the segment's transmittance;
+    default) the ambient radiance (or the backdrop, seen straight on from the
+    surface), attenuated by the segment's transmittance;
     with ``black`` nothing, which is what Mitsuba's ``path`` integrator
     computes with ``max_depth = D_re + 1``. In ambient light a non-absorbing
     container is filled with nearly the ambient radiance, so ``ambient`` is
@@ -248,7 +256,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         if self.model.render.mode == 'neus':
             self._trace_neus(surroundings, rays, acc, jitter)
         else:
-            self._trace_container(scene, surroundings, rays, acc, jitter)
+            self._trace_container(surroundings, rays, acc, jitter)
         L = acc.result()
         return RayTreeResult(color=self.tonemap(L), L=L, mask=acc.mask, sparsity=acc.sparsity,
                              eikonal=acc.eikonal, n_samples=acc.n_samples, normal=acc.normal)
@@ -267,42 +275,42 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     # One generation of the ray tree per loop turn: rays are compressed to the
     # live ones so that the 2^k growth costs nothing for rays that escaped.
-    def _trace_container(self, scene, surroundings, rays, acc, jitter):
+    def _trace_container(self, surroundings, rays, acc, jitter):
         render = self.model.render
         plus = render.mode == 'neus_plus'
         depth_limit = 1 if plus else render.max_depth
-        ambient = surroundings.ambient
+        outside = surroundings.outside
         for depth in range(depth_limit + 1):
             if rays.size == 0:
                 return
-            hit = self._intersect(scene, surroundings, rays)
+            hit = self._intersect(surroundings, rays)
             if depth == 0:
                 acc.mark_container(rays.camera, hit.valid)
             leaving = hit.valid & (dr.dot(rays.d, hit.n) > 0)
-            acc.add(rays.camera, rays.β * ambient(rays.d), ~hit.valid)
+            acc.add(rays.camera, rays.β * outside(rays.o, rays.d, ~hit.valid), ~hit.valid)
             T = self._render_inside(rays, hit.t, leaving, acc, jitter)
             if plus and depth == 1:
                 # NeuS+: the light beyond the segment arrives straight, unrefracted.
-                acc.add(rays.camera, rays.β * T * ambient(rays.d), leaving)
+                acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, leaving), leaving)
                 return
             if depth == depth_limit:
                 if render.terminal == 'ambient':
-                    acc.add(rays.camera, rays.β * T * ambient(rays.d), hit.valid)
+                    acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, hit.valid), hit.valid)
                 return
             rays = self._interface(rays, hit, T, surroundings.eta, reflect=not plus, depth=depth)
 
-    def _intersect(self, scene, surroundings, rays) -> '_Hit':
+    def _intersect(self, surroundings, rays) -> '_Hit':
         """The rays' next container interface: distance, point, normals (differentiable in the pose)."""
-        pose = surroundings.pose
+        pose, container = surroundings.pose, surroundings.container
         if pose is None:
-            si = scene.ray_intersect(mi.Ray3f(rays.o, rays.d))
+            si = container.ray_intersect(mi.Ray3f(rays.o, rays.d))
             p = mi.Point3f(rays.o + si.t * rays.d)
             return _Hit(t=si.t, p=p, n=si.n, n_s=_shading_normal(surroundings.normals, si, p),
                         valid=si.is_valid())
         # The container as loaded, seen by the rays taken into its frame: t is the same
         # parameter along both rays when the direction keeps its length.
         o_c, d_c = pose.to_container(rays.o, rays.d)
-        si = scene.ray_intersect(mi.Ray3f(o_c, d_c))
+        si = container.ray_intersect(mi.Ray3f(o_c, d_c))
         n_s = _shading_normal(surroundings.normals, si, o_c + si.t * d_c)
         return _Hit(t=si.t, p=mi.Point3f(rays.o + si.t * rays.d), n=pose.normal_to_world(si.n),
                     n_s=pose.normal_to_world(n_s), valid=si.is_valid())
@@ -316,9 +324,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         inside = (disc > 0) & (t_far > 0)
         acc.mark_container(rays.camera, inside)
         t_near = dr.maximum(-b - dr.safe_sqrt(disc), 0.0)
+        t_exit = dr.select(inside, t_far, 0.0) * self.frame.scale
+        beyond = mi.Point3f(rays.o + rays.d * t_exit)
         rays.o = mi.Point3f(rays.o + rays.d * (t_near * self.frame.scale))
         T = self._render_inside(rays, (t_far - t_near) * self.frame.scale, inside, acc, jitter)
-        acc.add(rays.camera, rays.β * T * surroundings.ambient(rays.d), mi.Bool(True))
+        acc.add(rays.camera, rays.β * T * surroundings.outside(beyond, rays.d), mi.Bool(True))
 
     def _render_inside(self, rays, t_far, inside, acc, jitter) -> mi.Float:
         """Volume render the rays' segments [0, t_far] where ``inside``; return T (1 elsewhere)."""
@@ -378,8 +388,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     # ------------------------------------------------------------ the scene
     def bind(self, scene: mi.Scene) -> Surroundings:
-        """The surroundings of ``scene`` (container, IOR, light), checked and built once per
-        scene (its shapes identify it); their parameters then appear in ``mi.traverse``."""
+        """The surroundings of ``scene`` (container, IOR, light, backdrop), checked and built once
+        per scene (its shapes identify it); their parameters then appear in ``mi.traverse``."""
         key = (tuple(scene.shapes()), scene.environment())
         if self._bound is None or not _same(self._bound[0], key):
             self._bound = (key, _surroundings(scene, self.model.render))
@@ -387,29 +397,55 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     def frame_of(self, scene: mi.Scene) -> FieldFrame:
         """The field's frame bounded by the scene's container (by the unit sphere without one)."""
-        bbox = scene.bbox()
-        bounds = (tuple(bbox.min), tuple(bbox.max)) if scene.shapes() and bbox.valid() else None
+        bbox = _bbox(_parts(scene)[0])
+        bounds = (tuple(bbox.min), tuple(bbox.max)) if bbox.valid() else None
         return dataclasses.replace(self.frame, bounds=bounds)
 
 
+def _parts(scene: mi.Scene) -> tuple[list, list, list]:
+    """The scene's shapes sorted: the container (smooth dielectrics), the backdrop (area
+    emitters), the others (an error where the container matters)."""
+    container, backdrop, other = [], [], []
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if bsdf is not None and bsdf.class_name() == 'SmoothDielectric':
+            container.append(shape)
+        elif shape.is_emitter():
+            backdrop.append(shape)
+        else:
+            other.append(shape)
+    return container, backdrop, other
+
+
+def _bbox(shapes: list) -> mi.ScalarBoundingBox3f:
+    """The union of the shapes' bounding boxes (invalid for none)."""
+    bbox = mi.ScalarBoundingBox3f()
+    for shape in shapes:
+        bbox.expand(shape.bbox())
+    return bbox
+
+
 def _surroundings(scene: mi.Scene, render: RenderConfig) -> Surroundings:
-    """The scene's container and light, checked: every shape a smooth dielectric of one IOR."""
-    shapes = scene.shapes()
+    """The scene's container, light and backdrop, checked: every shape a smooth dielectric of
+    one IOR or an area emitter."""
+    shapes, backdrop, other = _parts(scene)
     if scene.environment() is None:
         raise ReneusError("reneus integrator: the scene has no environment emitter; expected "
                           "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
     if render.mode == 'neus':
-        return Surroundings(1.0, shapes, scene.environment(), light=render.light)
+        return Surroundings(1.0, shapes, scene.environment(), backdrop=backdrop, light=render.light)
+    for shape in other:
+        bsdf = shape.bsdf()
+        name = bsdf.class_name() if bsdf is not None else 'no'
+        raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {name} BSDF and no emitter; "
+                          "every shape must be the container, with a smooth 'dielectric' BSDF, or a "
+                          "backdrop with an 'area' emitter (the board the container stands on)")
     if not shapes:
-        raise ReneusError('reneus integrator: the scene has no shape; expected the container '
-                          'as a shape with a dielectric BSDF')
+        raise ReneusError('reneus integrator: the scene has no shape with a dielectric BSDF; expected '
+                          'the container as such a shape')
     eta = None
     for shape in shapes:
         bsdf = shape.bsdf()
-        name = bsdf.class_name() if bsdf is not None else 'none'
-        if name != 'SmoothDielectric':
-            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {name} BSDF; every "
-                              "shape must be the container, with a smooth 'dielectric' BSDF")
         value = mi.traverse(bsdf)['eta']
         if eta is not None and abs(value - eta) > 1e-6:
             raise ReneusError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
@@ -418,9 +454,10 @@ def _surroundings(scene: mi.Scene, render: RenderConfig) -> Surroundings:
     if render.container_pose and not all(isinstance(sh, mi.Mesh) for sh in shapes):
         raise ReneusError('reneus integrator: container_pose needs the container as triangle meshes '
                           '(ply, obj); the scene has another kind of shape')
-    bbox = scene.bbox()
-    return Surroundings(eta, shapes, scene.environment(), light=render.light, pose=render.container_pose,
-                        pivot=0.5 * (bbox.min + bbox.max), crease_angle=render.crease_angle)
+    bbox = _bbox(shapes)
+    return Surroundings(eta, shapes, scene.environment(), backdrop=backdrop, light=render.light,
+                        pose=render.container_pose, pivot=0.5 * (bbox.min + bbox.max),
+                        crease_angle=render.crease_angle)
 
 
 def _same(a: tuple, b: tuple) -> bool:

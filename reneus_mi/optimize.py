@@ -88,7 +88,8 @@ def run(args) -> str:
         psnr = recent_psnr(folder.read_log()) or float('nan')
     lines = [f"{ended} in {result['seconds']:.0f} s"
              + (f", PSNR {psnr:.2f} dB (last 100 steps)" if psnr == psnr else '')
-             + f"; mesh {result['mesh']}"
+             + f"; mesh {result['mesh']}" + (f" ({result['units']})" if 'units' in result else '')
+             + (f" and {result['glb']['path']} (for the web)" if 'glb' in result else '')
              + (f"; renders {folder.images}" if cfg.validate_every else '')]
     from reneus_mi.data import load_dataset
     gt = load_dataset(spec.data, need_container=False).gt_mesh

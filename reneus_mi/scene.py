@@ -1,6 +1,7 @@
 """Write the Mitsuba 3 scene of a dataset: ``python -m reneus_mi.scene DATA_DIR -o scene.xml``.
 
-The scene (container, ambient light, first camera, integrator) is
+The scene (container, ambient light, first camera, integrator, and the printed board
+of a capture with its radiance beside the XML) is
 :func:`reneus_mi.data.scene_xml.write_scene`'s. The ``reneus`` integrator's
 settings start from ``--preset``; ``--set model.render.max_depth=3`` changes one,
 by its dotted path in :class:`reneus_mi.config.ReconstructionConfig`, typed and
@@ -34,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='python -m reneus_mi.scene',
         description='Write a Mitsuba 3 scene (container, ambient light, first camera, '
-                    'integrator) for a ReNeuS dataset.')
+                    "integrator, a capture's printed board) for a ReNeuS dataset.")
     parser.add_argument('data_dir', metavar='DATA_DIR',
                         help='dataset folder (transforms.json or cameras_sphere.npz)')
     parser.add_argument('-o', '--output', required=True, help='scene XML file to write')
@@ -48,7 +49,13 @@ def main(argv: list[str] | None = None) -> int:
                              'model.render.max_depth=3, model.field.hidden=64 or model.field=hashgrid, '
                              'typed as reneus_mi.config declares it (repeatable; for another '
                              "--integrator: NAME=VALUE, that plugin's property)")
-    parser.add_argument('--overwrite', action='store_true', help='replace an existing scene file')
+    parser.add_argument('--board', choices=('scene', 'ambient'), default='scene',
+                        help="a capture's printed board: 'scene' puts it under the container, so that "
+                             "rays leaving through the bottom see the print (its radiance in "
+                             "<scene>_board.exr); 'ambient' leaves it out, the paper's model: they see "
+                             "C_out (default: %(default)s)")
+    parser.add_argument('--overwrite', action='store_true', help='replace an existing scene file '
+                        '(and its <scene>_container.ply, <scene>_board.exr)')
     args = parser.parse_args(argv)
     with exit_on_error():
         guards.check_output_file(args.output, inputs=[args.data_dir], overwrite=args.overwrite,
@@ -76,7 +83,8 @@ def main(argv: list[str] | None = None) -> int:
                           + (' and renders plain NeuS (mode neus)' if args.integrator == 'reneus' else ''))
             if args.integrator == 'reneus':
                 settings['mode'] = 'neus'
-        write_scene(ds, args.output, integrator=args.integrator, overwrite=args.overwrite, **settings)
+        write_scene(ds, args.output, integrator=args.integrator, board=args.board == 'scene',
+                    overwrite=args.overwrite, **settings)
     return 0
 
 

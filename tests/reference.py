@@ -1,5 +1,6 @@
 """Reference scenes and shapes shared by the tests: scenes that the reneus integrator and
-Mitsuba's path tracer both render, a glass cube for quick renders, a square for distances, points in a ball."""
+Mitsuba's path tracer both render (optionally with a printed board under the block), a glass
+cube for quick renders, a square for distances, points in a ball."""
 from __future__ import annotations
 
 import drjit as dr
@@ -29,23 +30,45 @@ def container(ior=1.45, mesh=None, to_world=None):
     return {'type': 'cube', 'to_world': BLOCK_ROTATION.scale(list(BLOCK_HALF)), 'bsdf': bsdf}
 
 
+#: The board under the block: 12 x 12 cells of white and black print (RGB, linear radiance).
+BOARD_CELLS, BOARD_WHITE, BOARD_BLACK = 12, (0.9, 0.85, 0.75), (0.05, 0.04, 0.06)
+#: Its half-size, and its gap below the block's bottom face (y = -BLOCK_HALF[1]).
+BOARD_HALF, BOARD_GAP = 1.5, 0.01
+
+
+def board():
+    """A printed board under the glass block, facing up (+y): an ``area`` emitter whose radiance
+    is a random pattern of white and black cells (a bitmap, bilinear), behind a black BSDF."""
+    cells = np.random.default_rng(7).random((BOARD_CELLS, BOARD_CELLS)) < 0.5
+    # Each cell 4 texels wide: sharp edges, blurred over a quarter of a cell by the filter.
+    cells = np.kron(cells, np.ones((4, 4)))[..., None]
+    radiance = np.where(cells, BOARD_WHITE, BOARD_BLACK).astype(np.float32)
+    to_world = (mi.ScalarTransform4f().translate([0.0, -BLOCK_HALF[1] - BOARD_GAP, 0.0])
+                .rotate([1, 0, 0], -90).scale([BOARD_HALF, BOARD_HALF, 1.0]))
+    return {'type': 'rectangle', 'to_world': to_world,
+            'bsdf': {'type': 'diffuse', 'reflectance': {'type': 'rgb', 'value': 0.0}},
+            'emitter': {'type': 'area', 'radiance': {'type': 'bitmap', 'bitmap': mi.Bitmap(radiance),
+                                                     'raw': True}}}
+
+
 def sensor(res):
     return {'type': 'perspective', 'fov': 28,
             'to_world': mi.ScalarTransform4f().look_at(origin=[2.2, 1.6, 3.4], target=[0, 0, 0], up=[0, 1, 0]),
             'film': {'type': 'hdrfilm', 'width': res, 'height': res, 'rfilter': {'type': 'box'}}}
 
 
-def reneus_scene(res=24, ior=1.45, mesh=None, to_world=None, **integrator):
+def reneus_scene(res=24, ior=1.45, mesh=None, to_world=None, with_board=False, **integrator):
     settings = {'type': 'reneus', 'gamma': 1.0, **integrator}
     if settings.setdefault('field', 'sphere') == 'sphere':
         settings = {'field_radius': SPHERE_RADIUS, 'field_color': SPHERE_COLOR,
                     'field_inv_s': 4000.0, **settings}
     return mi.load_dict({'type': 'scene', 'integrator': settings, 'sensor': sensor(res),
                          'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': AMBIENT}},
-                         'container': container(ior, mesh, to_world)})
+                         'container': container(ior, mesh, to_world),
+                         **({'board': board()} if with_board else {})})
 
 
-def path_scene(res=24, ior=1.45, max_depth=3, mesh=None):
+def path_scene(res=24, ior=1.45, max_depth=3, mesh=None, with_board=False):
     """The same scene for ``path``: the sphere is an emitter behind a black BSDF.
 
     Its radiance is c·η²: inside glass a path tracer scales radiance by η² at
@@ -59,7 +82,8 @@ def path_scene(res=24, ior=1.45, max_depth=3, mesh=None):
                          'container': container(ior, mesh),
                          'sphere': {'type': 'sphere', 'radius': SPHERE_RADIUS,
                                     'bsdf': {'type': 'diffuse', 'reflectance': {'type': 'rgb', 'value': 0.0}},
-                                    'emitter': {'type': 'area', 'radiance': {'type': 'rgb', 'value': c}}}})
+                                    'emitter': {'type': 'area', 'radiance': {'type': 'rgb', 'value': c}}},
+                         **({'board': board()} if with_board else {})})
 
 
 def pixel_rays(scene) -> mi.Ray3f:

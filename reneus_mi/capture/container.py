@@ -14,9 +14,13 @@ import trimesh
 
 from reneus_mi.data.objects import ROUNDING, container_mesh
 
-#: Gap (mm) between the board and the container's bottom in rendered scenes: a sheet of
-#: paper under glass is never in optical contact, and coplanar surfaces confuse a ray tracer.
-CONTACT_GAP = 0.01
+#: Gap (mm) between the container's bottom and the board in rendered scenes (the board lies
+#: this far into the table): a sheet of paper under glass is never in optical contact, and
+#: coplanar surfaces confuse a ray tracer. It must exceed the offset by which Mitsuba (and
+#: ``reneus``) start a ray off a surface, (1 + max |p|) x 8.9e-5: 0.027 mm at 300 mm from the
+#: board's origin; with 0.01 mm the rays leaving the glass through its bottom started beyond
+#: the board and saw the tent below it.
+CONTACT_GAP = 0.1
 
 
 def _inner_half(shape: str, size) -> np.ndarray:
@@ -54,21 +58,21 @@ def local_mesh(shape: str, size) -> trimesh.Trimesh:
     return out
 
 
-def pose_matrix(pose, lift: float = 0.0) -> np.ndarray:
-    """4x4 board-from-container transform of a place ``(x, y, yaw)``; ``lift`` raises it (mm)."""
+def pose_matrix(pose) -> np.ndarray:
+    """4x4 board-from-container transform of a place ``(x, y, yaw)``."""
     x, y, yaw = pose
     c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
     M = np.eye(4)
     M[:2, :2] = [[c, -s], [s, c]]
-    M[:3, 3] = [x, y, -lift]
+    M[:3, 3] = [x, y, 0.0]
     return M
 
 
-def board_mesh(shape: str, size, pose, lift: float = 0.0) -> trimesh.Trimesh:
+def board_mesh(shape: str, size, pose) -> trimesh.Trimesh:
     """The container placed on the board (board frame, millimetres), normals carried along."""
     mesh = local_mesh(shape, size)
     normals = None if shape == 'box' else np.asarray(mesh.vertex_normals).copy()
-    M = pose_matrix(pose, lift)
+    M = pose_matrix(pose)
     mesh.apply_transform(M)
     if normals is not None:
         mesh.vertex_normals = normals @ M[:3, :3].T

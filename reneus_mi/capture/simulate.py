@@ -134,7 +134,9 @@ def cameras(rig: Rig, rng: np.random.Generator) -> np.ndarray:
 
 
 def board_shape(rig: Rig) -> mi.Mesh:
-    """The printed sheet: the pattern with its white margin, a diffuse textured quad facing -z."""
+    """The printed sheet: the pattern with its white margin, a diffuse textured quad facing -z,
+    ``CONTACT_GAP`` under the container as in the scenes that reconstruct it
+    (:func:`reneus_mi.data.scene_xml.board_to_world`)."""
     board = rig.board
     ppm = rig.texture_px_per_mm
     pad = int(round(rig.paper_margin_mm * ppm))
@@ -144,7 +146,8 @@ def board_shape(rig: Rig) -> mi.Mesh:
     m = pad / ppm
     # The pattern's pixel grid is exactly that of the board (see Board.pattern).
     lo, hi = -m, np.array([w + m, h + m])
-    v = np.array([[lo, lo, 0], [hi[0], lo, 0], [hi[0], hi[1], 0], [lo, hi[1], 0]], np.float32)
+    z = CONTACT_GAP
+    v = np.array([[lo, lo, z], [hi[0], lo, z], [hi[0], hi[1], z], [lo, hi[1], z]], np.float32)
     uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
     props = mi.Properties()
     props['bsdf'] = mi.load_dict({'type': 'diffuse', 'reflectance': {
@@ -236,21 +239,16 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
     specimen = specimen_mesh(rig)
     specimen_path = os.path.join(truth, 'specimen.ply')
     write_object(specimen, specimen_path)
-    # Rendered a hair above the paper (CONTACT_GAP), as glass lies on a sheet.
-    lifted = os.path.join(truth, '.render_container.ply')
-    write_container(board_mesh(rig.container, rig.size_mm, rig.pose, lift=CONTACT_GAP), lifted,
-                    normals=rig.container != 'box')
     scene = mi.load_dict({
         'type': 'scene',
         'integrator': {'type': 'path', 'max_depth': rig.max_depth, 'rr_depth': rig.max_depth},
         'tent': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': [rig.ambient] * 3}},
         'board': board_shape(rig),
         # Shaded with the normals the reneus integrator gives the same file.
-        'container': shading_mesh(lifted, bsdf={'type': 'dielectric', 'int_ior': rig.ior, 'ext_ior': 1.0}),
+        'container': shading_mesh(container_path, bsdf={'type': 'dielectric', 'int_ior': rig.ior, 'ext_ior': 1.0}),
         'specimen': {'type': 'ply', 'filename': specimen_path,
                      'bsdf': {'type': 'diffuse', 'reflectance': {'type': 'mesh_attribute', 'name': 'vertex_color'}}},
     })
-    os.unlink(lifted)
     os.makedirs(photos, exist_ok=True)
     views, gains = [], []
     for i, cam in enumerate(c2w):

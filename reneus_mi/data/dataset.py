@@ -11,7 +11,10 @@ neither format has a field for are stored under the same JSON keys in both:
 - ``"scale_mat"``: (Blender format only, written by reneus-mi) NeuS's 4x4
   normalisation matrix, so that a NeuS dataset survives a round trip;
 - ``"ambient"``: the ambient light C_out measured with the photographs (linear, one number
-  or RGB), which the scene writer then uses (``reneus_mi.capture`` writes it).
+  or RGB), which the scene writer then uses (``reneus_mi.capture`` writes it);
+- ``"capture"``: what ``reneus_mi.capture`` knows of the world (:mod:`reneus_mi.capture.dataset`):
+  ``units`` and ``frame`` of the coordinates, and ``board``, the printed board the container
+  stands on (:class:`PrintedBoard`), which the scene writer puts into the scene.
 """
 from __future__ import annotations
 
@@ -26,6 +29,36 @@ from reneus_mi.data.checks import check_ior, check_views
 from reneus_mi.data.cameras import check_c2w, check_K, pixel_rays
 from reneus_mi.data.masks import container_masks
 from reneus_mi.geometry.container import bounding_sphere, load_container, mesh_type
+
+
+@dataclasses.dataclass(frozen=True)
+class PrintedBoard:
+    """The printed board the container stands on, as the photographs measured it: what rays
+    leaving the container through its bottom see (``capture.board`` in transforms.json)."""
+    #: (h, w) float32 in [0, 1]: the print, 0 ink and 1 paper. Pixel (i, j) covers the board's
+    #: x in [j, j+1] / px_per_mm and y in [i, i+1] / px_per_mm (millimetres).
+    pattern: np.ndarray
+    px_per_mm: float
+    #: 4x4: the board's frame (OpenCV's ChArUco frame, z into the table) to the dataset's world.
+    to_world: np.ndarray
+    #: Linear RGB radiance of the paper and of the ink, at the dataset's exposure.
+    white: np.ndarray
+    black: np.ndarray
+
+    @property
+    def size_mm(self) -> tuple[float, float]:
+        """Extent along the board's x (columns) and y (rows)."""
+        return self.pattern.shape[1] / self.px_per_mm, self.pattern.shape[0] / self.px_per_mm
+
+    def radiance(self, max_texels: int) -> np.ndarray:
+        """(h, w, 3) float32 linear radiance of the print, at most ``max_texels`` along its longer
+        side (area-averaged, as a coarser look at the print)."""
+        import cv2
+        h, w = self.pattern.shape
+        scale = min(1.0, max_texels / max(h, w))
+        pattern = self.pattern if scale == 1.0 else cv2.resize(
+            self.pattern, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+        return (self.black + (self.white - self.black) * pattern[..., None]).astype(np.float32)
 
 
 @dataclasses.dataclass
@@ -60,6 +93,12 @@ class Dataset:
     #: Whether the masks were read from files (segmented photographs) rather than projected
     #: from the container mesh: only such masks say where the container really is.
     masks_measured: bool = False
+    #: The printed board the container stands on, if the capture measured one.
+    board: PrintedBoard | None = None
+    #: Units and frame of the world coordinates, where the dataset states them (a capture:
+    #: millimetres in the board's frame).
+    units: str | None = None
+    frame: str | None = None
 
     def __len__(self) -> int:
         return len(self.images)
@@ -179,6 +218,34 @@ def read_extras(meta: dict, root: str, where: str) -> dict:
             raise ReneusError(f"{where}: 'ambient' is {meta['ambient']!r}; expected a positive radiance "
                               "(one number or RGB)")
         out['ambient'] = ambient.copy()
+    if meta.get('capture') is not None:
+        out.update(_read_capture(meta['capture'], root, f'{where}: capture'))
+    return out
+
+
+def _read_capture(capture, root: str, where: str) -> dict:
+    """The units, frame and printed board of a ``capture`` entry (see the module docstring)."""
+    from reneus_mi.data.images import read_image
+    if not isinstance(capture, dict):
+        raise ReneusError(f'{where}: expected an object with units, frame and board, got {capture!r}')
+    out = {key: capture[key] for key in ('units', 'frame') if isinstance(capture.get(key), str)}
+    board = capture.get('board')
+    if board is None:
+        return out
+    where = f'{where}.board'
+    try:
+        pattern, px = str(board['pattern']), float(board['px_per_mm'])
+        to_world = np.asarray(board['to_world'], np.float64).reshape(4, 4)
+        white, black = (np.broadcast_to(np.asarray(board[k], np.float64), (3,)).copy() for k in ('white', 'black'))
+    except (KeyError, TypeError, ValueError) as e:
+        raise ReneusError(f"{where}: {e!r}; expected 'pattern' (an image file), 'px_per_mm', 'to_world' "
+                          "(4x4), 'white' and 'black' (linear RGB)") from None
+    if not (px > 0 and np.all(np.isfinite(to_world)) and np.all(black >= 0) and np.all(white > black)):
+        raise ReneusError(f'{where}: px_per_mm {px}, white {white.tolist()}, black {black.tolist()}; expected '
+                          'px_per_mm > 0, a finite to_world and the paper brighter than the ink (>= 0)')
+    image, _ = read_image(os.path.normpath(os.path.join(root, pattern)))
+    out['board'] = PrintedBoard(pattern=image.mean(axis=-1), px_per_mm=px, to_world=to_world,
+                                white=white, black=black)
     return out
 
 
@@ -221,7 +288,8 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
              c2w: np.ndarray, names: list[str], files: list[str], root: str, meta_file: str,
              need_container: bool, container: str | None = None, ior: float | None = None,
              gt_mesh: str | None = None, scale_mat: np.ndarray | None = None,
-             ambient: np.ndarray | None = None) -> Dataset:
+             ambient: np.ndarray | None = None, board: PrintedBoard | None = None,
+             units: str | None = None, frame: str | None = None) -> Dataset:
     """Check what a reader found and build the :class:`Dataset`.
 
     ``files`` are the image paths (for messages); ``masks`` may hold None for
@@ -255,6 +323,6 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
     ds = Dataset(images=np.stack(images).astype(np.float32), masks=np.stack(masks),
                  K=np.asarray(K, np.float64), c2w=np.asarray(c2w, np.float64), names=list(names),
                  root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat,
-                 ambient=ambient, masks_measured=not missing)
+                 ambient=ambient, masks_measured=not missing, board=board, units=units, frame=frame)
     ds.validate()
     return ds

@@ -10,6 +10,14 @@ integrator. For the ``reneus`` integrator it also names the dataset and the
 sphere the field lives in (``field_center``, ``field_scale``, see
 :meth:`reneus_mi.data.Dataset.normalization`).
 
+A dataset whose capture measured the printed board the container stands on
+(:class:`~reneus_mi.data.dataset.PrintedBoard`) gets it as a backdrop (issue #16, item 5):
+a ``rectangle`` over the print, :data:`~reneus_mi.capture.container.CONTACT_GAP` under the
+container, facing the cameras, with an ``area`` emitter whose radiance is the print's
+measured linear radiance (a bitmap written beside the scene, ``<scene>_board.exr``) and a
+black ``diffuse`` BSDF: Mitsuba's ``path`` and the ``reneus`` integrator (which takes a
+backdrop's emission where a ray leaving the container meets it) see the same board.
+
 ``python -m reneus_mi.scene DATA_DIR -o scene.xml`` writes one (:mod:`reneus_mi.scene`).
 """
 from __future__ import annotations
@@ -26,6 +34,7 @@ from reneus_mi import guards
 from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
 from reneus_mi.geometry.container import load_container, mesh_type, mitsuba_reads
 from reneus_mi.errors import ReneusError
+from reneus_mi.data.images import write_image
 from reneus_mi.io import atomic_export, atomic_open
 
 #: Container IOR when the dataset states none (the paper's synthetic glass).
@@ -38,6 +47,10 @@ SAMPLE_COUNT = 16
 _SQUARE_PIXEL_TOL = 1e-4
 #: Integrator properties that write_scene sets itself for the reneus integrator.
 _RESERVED = ('dataset', 'field_center', 'field_scale')
+#: Most texels of the board's radiance along its longer side: 2048 keeps the default A4 board
+#: (240 mm) at 8.5 texels per millimetre, finer than a 24-megapixel photograph sees it, in
+#: 38 MB as Mitsuba holds it.
+BOARD_TEXELS = 2048
 
 
 def sensor_params(K: np.ndarray, c2w: np.ndarray, width: int, height: int) -> dict:
@@ -95,11 +108,24 @@ def _relative(path: str, xml_dir: str) -> str:
         return os.path.abspath(path)
 
 
+def board_to_world(board) -> np.ndarray:
+    """4x4 world transform of Mitsuba's ``rectangle`` ([-1, 1]^2, uv = (x, y) / 2 + 1/2) onto the
+    print of ``board`` (a :class:`~reneus_mi.data.dataset.PrintedBoard`), ``CONTACT_GAP`` into the
+    table: u along the board's x, v along its y, as the pattern's columns and rows."""
+    from reneus_mi.capture.container import CONTACT_GAP
+    w, h = board.size_mm
+    local = np.diag([0.5 * w, 0.5 * h, 1.0, 1.0])
+    local[:3, 3] = [0.5 * w, 0.5 * h, CONTACT_GAP]
+    return board.to_world @ local
+
+
 def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient: float | None = None,
-              container: str | None = None, **integrator_settings) -> ET.ElementTree:
+              container: str | None = None, board: str | None = None,
+              **integrator_settings) -> ET.ElementTree:
     """Build the scene of :func:`write_scene`; file paths relative to ``xml_dir``.
 
-    ``container`` names the mesh file the scene gives Mitsuba (default: the dataset's)."""
+    ``container`` names the mesh file the scene gives Mitsuba (default: the dataset's);
+    ``board`` the radiance image of the dataset's printed board (None: no board)."""
     ds.validate()
     container = container or ds.container
     clash = [k for k in integrator_settings if integrator == 'reneus' and k in _RESERVED]
@@ -150,15 +176,32 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
         # The paper's outside medium is air with an index of exactly 1.
         ET.SubElement(bsdf, 'float', name='ext_ior', value='1.0')
 
+    if board is not None:
+        shape = ET.SubElement(scene, 'shape', type='rectangle', id='board')
+        # The rectangle faces +z, the board's z points into the table: turned to the cameras.
+        ET.SubElement(shape, 'boolean', name='flip_normals', value='true')
+        to_world = ET.SubElement(shape, 'transform', name='to_world')
+        ET.SubElement(to_world, 'matrix', value=' '.join(map(_num, board_to_world(ds.board).ravel())))
+        bsdf = ET.SubElement(shape, 'bsdf', type='diffuse')
+        ET.SubElement(bsdf, 'rgb', name='reflectance', value='0.0')
+        emitter = ET.SubElement(shape, 'emitter', type='area')
+        texture = ET.SubElement(emitter, 'texture', type='bitmap', name='radiance')
+        ET.SubElement(texture, 'string', name='filename', value=_relative(board, xml_dir))
+        ET.SubElement(texture, 'boolean', name='raw', value='true')
+
     tree = ET.ElementTree(scene)
     ET.indent(tree)
     return tree
 
 
 def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: float | None = None,
-                overwrite: bool = False, **integrator_settings) -> None:
+                board: bool = True, overwrite: bool = False, **integrator_settings) -> None:
     """Write the Mitsuba 3 scene XML of ``ds`` to ``path``, lit by a constant ``ambient``
     (default: the dataset's measured one, else :data:`AMBIENT_RADIANCE`).
+
+    A dataset with a printed board gets it in the scene, its radiance in
+    ``<scene>_board.exr`` beside it (``board=False``: the paper's model, the board
+    taken as ambient light like the rest of the surroundings).
 
     ``integrator_settings`` become properties of the integrator, typed by
     their Python type (bool, int, float, str). A dataset without a container
@@ -176,9 +219,15 @@ def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: 
         container = guards.check_output_file(os.path.splitext(path)[0] + '_container.ply',
                                              inputs=[ds.root, ds.container], overwrite=overwrite,
                                              what='triangulated container')
+    board_file = None
+    if board and ds.board is not None:
+        board_file = guards.check_output_file(os.path.splitext(path)[0] + '_board.exr', inputs=[ds.root],
+                                              overwrite=overwrite, what="board's radiance")
     tree = scene_xml(ds, xml_dir, integrator=integrator, ambient=ambient, container=container,
-                     **integrator_settings)
+                     board=board_file, **integrator_settings)
     if container != ds.container:
         atomic_export(load_container(ds.container), container)
+    if board_file is not None:
+        write_image(board_file, ds.board.radiance(BOARD_TEXELS))
     with atomic_open(path, 'wb') as f:
         tree.write(f, encoding='utf-8', xml_declaration=True)

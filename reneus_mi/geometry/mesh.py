@@ -1,7 +1,8 @@
 """Triangle meshes in and out, and the few properties the package measures on them.
 
 :func:`load_mesh` is the package's one mesh reader, :func:`write_mesh` its one
-writer (atomic); :func:`mitsuba_mesh` hands a mesh to Mitsuba for ray tests.
+writer (atomic), :func:`write_glb` the web viewers' copy (vertex colours, glTF's metres
+and axes); :func:`mitsuba_mesh` hands a mesh to Mitsuba for ray tests.
 """
 from __future__ import annotations
 
@@ -43,6 +44,35 @@ def load_mesh(path: str | os.PathLike, what: str = 'mesh') -> trimesh.Trimesh:
 def write_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike) -> None:
     """Export atomically (the format follows the extension)."""
     atomic_export(mesh, path)
+
+
+#: Metres per unit of the coordinates that datasets state (glTF's unit is the metre).
+METRES = {'mm': 1e-3, 'cm': 1e-2, 'm': 1.0}
+
+
+def gltf_from_world(units: str | None = None, up=None, right=None) -> np.ndarray:
+    """4x4 from world coordinates to glTF's convention (metres, +y up, right-handed): scaled
+    by the ``units`` (unchanged when unknown) and turned so that ``up`` (a world direction)
+    becomes +y and ``right`` +x (the world unturned without them)."""
+    M = np.eye(4)
+    if up is not None:
+        u = np.asarray(up, np.float64) / np.linalg.norm(up)
+        r = np.asarray(right, np.float64) - np.dot(right, u) * u
+        r /= np.linalg.norm(r)
+        M[:3, :3] = np.stack([r, u, np.cross(r, u)])
+    return np.diag([METRES.get(units, 1.0)] * 3 + [1.0]) @ M
+
+
+def write_glb(mesh: trimesh.Trimesh, colors: np.ndarray, path: str | os.PathLike,
+              to_gltf: np.ndarray | None = None) -> None:
+    """Write ``mesh`` as binary glTF with per-vertex ``colors`` ((V, 3) in [0, 1], display
+    values), its vertices moved by ``to_gltf`` (:func:`gltf_from_world`), atomically."""
+    out = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False)
+    if to_gltf is not None:
+        out.apply_transform(to_gltf)
+    rgba = np.concatenate([np.round(np.clip(colors, 0.0, 1.0) * 255.0), np.full((len(colors), 1), 255.0)], axis=1)
+    out.visual = trimesh.visual.ColorVisuals(out, vertex_colors=rgba.astype(np.uint8))
+    atomic_export(out, path)
 
 
 def signed_volume(vertices, faces) -> float:

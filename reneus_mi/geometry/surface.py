@@ -224,6 +224,24 @@ def field_mesh(field: Field, frame: FieldFrame, resolution: int, mode: str, cont
     return postprocess(mesh, mode, None)
 
 
+def field_colors(field: Field, frame: FieldFrame, vertices: np.ndarray, gamma: float,
+                 chunk: int = 2**18) -> np.ndarray:
+    """(V, 3) colours of the field at world ``vertices`` (on its surface), as the photographs
+    show colour: the radiance leaving each vertex along the field's normal (seen head-on from
+    outside), gamma-encoded (c^(1/γ)) and clipped to [0, 1]."""
+    vertices = np.asarray(vertices, np.float64)
+    out = np.zeros((len(vertices), 3), np.float32)
+    with dr.suspend_grad():
+        for start in range(0, len(vertices), chunk):
+            v = vertices[start:start + chunk].astype(np.float32)
+            x = frame.to_field(mi.Point3f(*(mi.Float(v[:, i]) for i in range(3))))
+            _, grad, feature = field.gradient(x)
+            n = dr.normalize(grad)
+            c = field.radiance(x, -n, n, feature)
+            out[start:start + len(v)] = np.array(c, np.float32).T
+    return np.clip(np.maximum(np.nan_to_num(out), 0.0) ** (1.0 / gamma), 0.0, 1.0)
+
+
 def check_resolution(resolution: int, what: str = '--resolution') -> None:
     """Refuse a grid below 8 per axis, past 32-bit indices or the machine's memory."""
     if resolution < 8:

@@ -22,6 +22,20 @@ derivatives are the interior ones (how refraction moves with the glass).
 Light: ``ambient`` is one RGB radiance for every direction (the paper's C_out);
 ``sh`` a real spherical-harmonics expansion up to order 2 (9 RGB
 coefficients), for rooms that are not uniform.
+
+Backdrop (beyond the paper, issue #16 item 5): shapes of the scene with an ``area``
+emitter, e.g. the printed board the container stands on. A ray that leaves the container
+takes the radiance of the backdrop it meets, and C_out only where it meets none: rays
+leaving a block through its bottom see the board, not the tent, and the paper's model
+(Sec. 5 blames such violations for its drop on real data) paints the difference into the
+field. The container and the backdrop are each a Mitsuba scene of their own, built from
+the loaded scene's shapes: the container is intersected in its own frame (the refined pose
+moves the rays, not the mesh) while the backdrop stays where the scene puts it, so one
+scene cannot serve both. Mitsuba's own intersection and ``emitter.eval`` then give exactly
+the radiance that its ``path`` integrator sees (the same uv, texture filter and
+one-sidedness, on any shape), differentiable in the ray: the IOR and the pose move where a
+refracted ray meets the printed pattern. An analytic plane with a texture lookup would
+copy the rectangle's parametrisation and the bitmap's filtering, and allow planes only.
 """
 from __future__ import annotations
 
@@ -172,13 +186,23 @@ class ContainerPose:
         return M
 
 
-class Surroundings:
-    """The container's IOR and pose and the light of one scene, owned by the integrator."""
+def scene_of(shapes: list) -> mi.Scene:
+    """A Mitsuba scene of already loaded ``shapes`` (for ray queries of its own)."""
+    return mi.load_dict({'type': 'scene', **{f'shape_{i}': shape for i, shape in enumerate(shapes)}})
 
-    def __init__(self, eta: float, shapes: list, emitter: mi.Emitter, *, light: str = 'emitter',
-                 pose: bool = False, pivot=(0.0, 0.0, 0.0), crease_angle: float = CREASE_ANGLE):
+
+class Surroundings:
+    """The container's IOR and pose, the light and the backdrop of one scene, owned by the
+    integrator."""
+
+    def __init__(self, eta: float, shapes: list, emitter: mi.Emitter, *, backdrop: list = (),
+                 light: str = 'emitter', pose: bool = False, pivot=(0.0, 0.0, 0.0),
+                 crease_angle: float = CREASE_ANGLE):
         self.eta = mi.Float(eta)
         self.shapes = shapes
+        #: The container alone, and the backdrop shapes (None without): see the module docstring.
+        self.container = scene_of(shapes)
+        self.backdrop = scene_of(list(backdrop)) if backdrop else None
         #: The shading normals of each mesh's triangle corners (the container's optics).
         self.normals = {shape: shading_normals(shape, crease_angle) for shape in shapes
                         if isinstance(shape, mi.Mesh)}
@@ -208,6 +232,17 @@ class Surroundings:
     def ambient(self, d: mi.Vector3f) -> mi.Color3f:
         """Radiance arriving from direction ``d`` outside the container (C_out)."""
         return emitter_radiance(self.emitter, d) if self.light is None else self.light.eval(d)
+
+    def outside(self, o: mi.Point3f, d: mi.Vector3f, active: mi.Bool | bool = True) -> mi.Color3f:
+        """Radiance seen from ``o`` (outside the container) looking along ``d``: the emission of
+        the backdrop where the ray meets it (its front; the back of an area emitter is black),
+        else C_out."""
+        L = self.ambient(d)
+        if self.backdrop is None:
+            return L
+        si = self.backdrop.ray_intersect(mi.Ray3f(o, d), active)
+        hit = si.is_valid()
+        return dr.select(hit, si.emitter(self.backdrop).eval(si, hit), L)
 
     def param_groups(self, refine) -> list[ParamGroup]:
         """The groups that ``refine`` (a :class:`~reneus_mi.config.RefineConfig`) asks for: the

@@ -35,8 +35,8 @@ from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
 from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.fields import load_field
-from reneus_mi.geometry.mesh import write_mesh
-from reneus_mi.geometry.surface import components, field_mesh
+from reneus_mi.geometry.mesh import gltf_from_world, write_glb, write_mesh
+from reneus_mi.geometry.surface import components, field_colors, field_mesh
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.render.loading import reneus_integrator
 from reneus_mi.render.seeds import JITTER, step_seed
@@ -339,6 +339,22 @@ class Trainer:
         write_mesh(mesh, path)
         return mesh
 
+    def write_glb(self, mesh: trimesh.Trimesh, path: str) -> dict:
+        """``mesh`` (world) as a web viewer's glTF: coloured by the field (:func:`field_colors`),
+        in metres with y up where the dataset says its units and the table's up (a capture);
+        returns what result.json says of it."""
+        board, units = self.ds.board, self.ds.units
+        colors = field_colors(self.field, self.frame, mesh.vertices, self.integrator.model.render.gamma)
+        if board is None:
+            to_gltf = gltf_from_world(units)
+            frame = "the dataset's world" + (f', in metres (from {units})' if units else '')
+        else:
+            # The board's z points into the table.
+            to_gltf = gltf_from_world(units, up=-board.to_world[:3, 2], right=board.to_world[:3, 0])
+            frame = "glTF's: metres, x, y, z = the board's x, -z (up), y"
+        write_glb(mesh, colors, path, to_gltf)
+        return {'path': path, 'frame': frame, 'colors': 'the radiance seen along the normal, gamma-encoded'}
+
     # ----------------------------------------------------------------- loop
     def run(self, progress: bool = True) -> dict:
         """Train to ``cfg.iterations`` (or through the time budget), checkpointing and validating
@@ -381,12 +397,16 @@ class Trainer:
         result = {'iterations': self.iteration, 'seconds': time.perf_counter() - start,
                   'psnr': float(np.mean(psnrs)) if psnrs else float('nan'), 'mesh': mesh_path,
                   'stopped_by_budget': timed}
+        # The mesh's coordinates are the dataset's world: its units and frame where it states them.
+        result.update({key: value for key, value in (('units', self.ds.units), ('frame', self.ds.frame)) if value})
         if self.refined:
             result['refined'] = self.refined_values()
         if cfg.refine.pose:
             result['container'] = self.write_container(self.folder.container)
         try:
-            result['components'] = components(self.write_mesh(mesh_path))
+            mesh = self.write_mesh(mesh_path)
+            result['components'] = components(mesh)
+            result['glb'] = self.write_glb(mesh, os.path.splitext(mesh_path)[0] + '.glb')
         except NoSurfaceError as e:
             # A run never ends without its mesh file: an empty one, and the reason.
             write_mesh(trimesh.Trimesh(), mesh_path)

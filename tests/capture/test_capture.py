@@ -75,11 +75,120 @@ def test_dataset_reads_back_in_millimetres(made, shot):
     from reneus_mi.capture.container import pose_matrix
     block = trimesh.load(ds.container)
     block.apply_transform(np.linalg.inv(pose_matrix(made['report']['container']['pose'])))
-    np.testing.assert_allclose(block.extents, shot['meta']['container']['size_mm'], atol=1e-6)
-    np.testing.assert_allclose(block.bounds[:, 2], [-25.0, 0.0], atol=1e-6)
+    # The PLY holds float32: 1e-5 mm at 150 mm from the origin.
+    np.testing.assert_allclose(block.extents, shot['meta']['container']['size_mm'], atol=1e-4)
+    np.testing.assert_allclose(block.bounds[:, 2], [-25.0, 0.0], atol=1e-4)
     assert ds.masks.any(axis=(1, 2)).all()
     # Exposures normalised: the white print is equally bright in every image.
     assert len(os.listdir(made['out'] / 'overlays')) == len(ds)
+
+
+def _path_render(xml, ds, view, spp=16):
+    """``path`` on the scene of ``xml`` through the dataset's camera ``view``, display values; the
+    container shaded as reneus shades it (its crease rule), as the simulator rendered it."""
+    import mitsuba as mi
+    from reneus_mi.data.scene_xml import sensor_dict
+    from reneus_mi.geometry.container import shading_mesh
+    scene = mi.load_file(str(xml))
+    parts = {f'backdrop_{i}': s for i, s in enumerate(scene.shapes()) if s.is_emitter()}
+    path = mi.load_dict({'type': 'scene', 'integrator': {'type': 'path', 'max_depth': 10},
+                         'tent': scene.environment(), **parts,
+                         'container': shading_mesh(ds.container, bsdf={'type': 'dielectric', 'int_ior': ds.ior,
+                                                                       'ext_ior': 1.0})})
+    sensor = mi.load_dict(sensor_dict(ds.K[view], ds.c2w[view], ds.width, ds.height))
+    image = np.array(mi.render(path, sensor=sensor, spp=spp, seed=view))
+    return np.clip(image, 0.0, 1.0) ** (1.0 / 2.2)
+
+
+def test_scene_board_is_the_photographed_one(made, tmp_path):
+    """The board that ``python -m reneus_mi.scene`` puts under the container (from the dataset's
+    pattern, geometry and measured print levels) is what the photographs show: around the
+    block, and through its bottom. Measured (view 3): 0.017 around it (JPEG, noise, blur);
+    in the glass a median of 0.048 (the insect, the path tracers' noise) where the board taken
+    as ambient light gives 0.24."""
+    from reneus_mi import scene as scene_command
+    ds = load_dataset(str(made['out']))
+    view = 3
+    around = cv2.dilate(ds.masks[view].astype(np.uint8), np.ones((31, 31), np.uint8)) > 0
+    glass = ds.masks[view]
+    error = {}
+    for board in ('scene', 'ambient'):
+        xml = tmp_path / f'{board}.xml'
+        assert scene_command.main([str(made['out']), '-o', str(xml), '--board', board]) == 0
+        assert os.path.isfile(tmp_path / f'{board}_board.exr') == (board == 'scene')
+        d = np.abs(_path_render(xml, ds, view) - ds.images[view]).mean(axis=-1)
+        error[board] = d[~around].mean(), np.median(d[glass])
+    print(error)
+    assert error['scene'][0] < 0.03
+    assert error['scene'][1] < 0.06 and error['ambient'][1] > 3 * error['scene'][1]
+
+
+#: The short reconstruction from the capture: STEPS steps of BATCH rays of the fast preset,
+#: meshed at MESH_RESOLUTION, as short as the claim allows. Chamfer-L1 with the board in the
+#: scene, against 3.54 mm for the sphere: 3.48 mm at 110 steps (the first sphere goes before
+#: the insect comes), 2.64 at 140, 2.52 at 150, 2.37 at 200. A step costs about as much at
+#: 256 rays as at 512 (200 x 256: 2.54 mm in the time of 140 x 512).
+STEPS, BATCH, MESH_RESOLUTION = 150, 512, 96
+
+
+@pytest.fixture(scope='module')
+def reconstructed(shot, made, tmp_path_factory):
+    """The same short run on the capture's dataset with the board in the scene and with the
+    board taken as ambient light (the paper's model), and the initial sphere, each measured
+    against the simulated specimen in millimetres (Chamfer-L1: the mean of accuracy and
+    completeness)."""
+    from reneus_mi.config import replace
+    from reneus_mi.data.scene_xml import write_scene
+    from reneus_mi.geometry.chamfer import chamfer
+    from reneus_mi.geometry.mesh import load_mesh
+    from reneus_mi.train import runs
+    folder = tmp_path_factory.mktemp('reconstruction')
+    ds = load_dataset(str(made['out']))
+    truth = load_mesh(os.path.join(shot['truth'], 'specimen.ply'))
+    out = {}
+    for board in (True, False):
+        xml = str(folder / f'scene_{board}.xml')
+        write_scene(ds, xml, preset='fast', board=board)
+        spec = runs.spec_of_scene(xml, None)
+        spec.config = replace(spec.config, **{'train.iterations': STEPS, 'train.batch_rays': BATCH,
+                                              'train.validate_every': 0, 'train.checkpoint_every': 0,
+                                              'train.mesh_resolution': MESH_RESOLUTION})
+        if board:
+            initial = runs.make_trainer(spec, str(folder / 'initial')).write_mesh(str(folder / 'initial.ply'))
+            out['sphere'] = chamfer(initial, truth)['chamfer'] / 100.0
+        result = runs.run(spec, str(folder / f'run_{board}'), progress=False)
+        out['board' if board else 'ambient'] = chamfer(load_mesh(result['mesh']), truth)['chamfer'] / 100.0
+        out[f'result_{board}'] = result
+    return out
+
+
+@pytest.mark.slow
+def test_reconstruction_from_the_photographs_in_millimetres(reconstructed):
+    """From JPEGs with no poses to a mesh in millimetres that beats the initial sphere and the
+    same run with the board taken as ambient light, which paints the print seen through the
+    block's bottom onto fake walls. The calibration and the container it starts from are checked
+    above against the issue's tolerances. Measured: sphere 3.54 mm, board as ambient 15.1 mm,
+    board in the scene 2.52 mm."""
+    r = reconstructed
+    print(f"Chamfer-L1 (mm): initial sphere {r['sphere']:.2f}, board as ambient {r['ambient']:.2f}, "
+          f"board in the scene {r['board']:.2f}")
+    assert r['board'] < 0.85 * r['sphere']
+    assert r['board'] < 0.5 * r['ambient']
+
+
+@pytest.mark.slow
+def test_result_says_millimetres_and_a_coloured_glb_lies_beside(reconstructed):
+    import trimesh
+    result = reconstructed['result_True']
+    assert result['units'] == 'mm' and result['frame'].startswith('board (OpenCV ChArUco')
+    glb = result['glb']['path']
+    assert glb == os.path.splitext(result['mesh'])[0] + '.glb'
+    ply = trimesh.load(result['mesh'], process=False)
+    web = trimesh.load(glb, force='mesh', process=False)
+    # glTF's metres, y up: the board's x, -z and y.
+    np.testing.assert_allclose(web.vertices, ply.vertices[:, [0, 2, 1]] * [1e-3, -1e-3, 1e-3], atol=1e-6)
+    colors = web.visual.vertex_colors[:, :3]
+    assert len(colors) == len(ply.vertices) and colors.std(axis=0).max() > 5
 
 
 def test_board_corners_where_the_pattern_puts_them():

@@ -570,6 +570,40 @@ def test_scene_output_under_a_file(world, tmp_path):
             'is a file, expected a folder', watch=[tmp_path])
 
 
+def _with_board(data, **board):
+    """The dataset with a printed board under its container, as a capture writes it (an entry
+    of ``board`` given as None is left out)."""
+    from reneus_mi.data.images import write_image
+    write_image(str(data / 'board.png'), np.kron(np.eye(4), np.ones((4, 4))))
+    meta = json.loads((data / 'transforms.json').read_text())
+    meta['capture'] = {'units': 'mm', 'board': {'pattern': 'board.png', 'px_per_mm': 4.0, 'white': 0.8,
+                                                'black': 0.05, 'to_world': np.eye(4).tolist()}}
+    for key, value in board.items():
+        if value is None:
+            del meta['capture']['board'][key]
+        else:
+            meta['capture']['board'][key] = value
+    (data / 'transforms.json').write_text(json.dumps(meta))
+    return data
+
+
+@pytest.mark.parametrize('board, parts', [
+    ({'white': None}, ("capture.board: KeyError('white')", "expected 'pattern'")),
+    ({'white': 0.01}, ('capture.board', 'the paper brighter than the ink')),
+    ({'pattern': 'print.png'}, ('print.png', 'image file is missing')),
+])
+def test_scene_bad_board(data, tmp_path, board, parts):
+    _with_board(data, **board)
+    refused(scene.main, [data, '-o', tmp_path / 'scene.xml'], *parts, watch=[tmp_path])
+
+
+def test_scene_over_an_existing_board_radiance(data, tmp_path):
+    _with_board(data)
+    (tmp_path / 'scene_board.exr').write_text('x')
+    refused(scene.main, [data, '-o', tmp_path / 'scene.xml'], "board's radiance", 'scene_board.exr', 'exists',
+            watch=[tmp_path])
+
+
 # ===================================================================== synth
 def test_synth_into_an_existing_dataset(world, data):
     """Harmful 4: synth -o EXISTING overwrote 7 files before refusing."""

@@ -125,3 +125,40 @@ def test_components_counts_pieces_of_a_per_face_mesh():
     soup = _body_with_fragments()
     soup.unmerge_vertices()
     assert components(soup) == 6 and components(trimesh.Trimesh()) == 0
+
+
+class _FacingField(SphereField):
+    """A sphere whose radiance tells where it is seen from: 0.25 (1 - v_x) along direction v."""
+
+    def radiance(self, x, v, n, feature):
+        import mitsuba as mi
+        return mi.Color3f(0.25 * (1.0 - v.x), 0.1 + 0.0 * x.x, 0.5 + 0.0 * x.x)
+
+
+def test_vertex_colours_are_the_radiance_seen_head_on():
+    from reneus_mi.geometry.surface import field_colors
+    from reneus_mi.render.frame import FieldFrame
+    frame = FieldFrame(center=(10.0, -5.0, 2.0), scale=30.0)
+    mesh = sphere(0.4, (0.0, 0.0, 0.0), 3)
+    world = mesh.vertices * 30.0 + [10.0, -5.0, 2.0]
+    colors = field_colors(_FacingField(radius=0.4), frame, world, gamma=2.2, chunk=100)
+    # Seen along the outward normal n the ray runs along -n: red 0.25 (1 + n_x), gamma-encoded.
+    n = mesh.vertices / 0.4
+    expected = np.stack([0.25 * (1 + n[:, 0]), np.full(len(n), 0.1), np.full(len(n), 0.5)], axis=1) ** (1 / 2.2)
+    np.testing.assert_allclose(colors, expected, atol=2e-3)
+
+
+def test_glb_in_metres_with_the_tables_up(tmp_path):
+    from reneus_mi.geometry.mesh import gltf_from_world, write_glb
+    # A capture's board frame: millimetres, z into the table; glTF: metres, y up.
+    M = gltf_from_world('mm', up=(0.0, 0.0, -1.0), right=(1.0, 0.0, 0.0))
+    np.testing.assert_allclose(M[:3, :3] @ [10.0, 20.0, -30.0], [0.01, 0.03, 0.02])
+    assert np.linalg.det(M[:3, :3]) > 0
+    np.testing.assert_allclose(gltf_from_world(None), np.eye(4))
+    mesh = sphere(5.0, (100.0, 50.0, -5.0), 2)
+    colors = np.random.default_rng(0).random((len(mesh.vertices), 3))
+    write_glb(mesh, colors, tmp_path / 'm.glb', M)
+    back = trimesh.load(tmp_path / 'm.glb', force='mesh', process=False)
+    np.testing.assert_allclose(back.bounds.mean(axis=0), [0.1, 0.005, 0.05], atol=1e-4)
+    assert len(back.vertices) == len(mesh.vertices)
+    np.testing.assert_array_equal(back.visual.vertex_colors[:, :3], np.round(colors * 255).astype(np.uint8))

@@ -82,14 +82,16 @@ def test_identity_pose_renders_the_scene_as_loaded():
     assert np.abs(plain - posed).mean() < 1e-6 and np.abs(plain - posed).max() < 2e-3
 
 
-@pytest.mark.parametrize('key, i', [('container.eta', 0), ('container.translation', 0),
-                                    ('container.translation', 1), ('container.rotation', 2),
-                                    ('container.log_scale', 0), ('light.radiance', 1)])
-def test_render_gradients_of_surroundings_match_finite_differences(key, i):
+@pytest.mark.parametrize('key, i, with_board', [
+    ('container.eta', 0, False), ('container.translation', 0, False), ('container.translation', 1, False),
+    ('container.rotation', 2, False), ('container.log_scale', 0, False), ('light.radiance', 1, False),
+    ('container.eta', 0, True), ('container.translation', 0, True)])
+def test_render_gradients_of_surroundings_match_finite_differences(key, i, with_board):
     # Interior derivatives, pixel by pixel: the rays keep their pixels, the glass moves under
     # them; the samples of each inside segment follow its ends. Coarse samples only (fine ones
     # are drawn anew where the surface moves, which central differences see and AD does not).
-    scene = _refinable_scene(16, max_depth=2, n_fine=0)
+    # With the board under the block, the refracted rays also move over its print.
+    scene = _refinable_scene(16, max_depth=2, n_fine=0, with_board=with_board)
     integrator = scene.integrator()
     ray = pixel_rays(scene)
     array = integrator.params()[key]
@@ -109,9 +111,10 @@ def test_render_gradients_of_surroundings_match_finite_differences(key, i):
         f.append(np.array(integrator.render_rays(scene, ray).L))
     mi.set_property(array, mi.Float(value))
     fd = (f[0] - f[1]) / (2 * h)
-    # A few rays cross a box edge within ±h: there the difference quotient is not a derivative.
+    # A few rays cross a box edge (or the print's texels) within ±h: there the difference
+    # quotient is not a derivative.
     agree = np.abs(ad - fd) < 0.01 + 0.05 * np.abs(fd)
-    assert agree.mean() > 0.99, (key, i, agree.mean())
+    assert agree.mean() > (0.95 if with_board else 0.99), (key, i, agree.mean())
     assert np.abs(ad - fd)[agree].sum() < 0.02 * np.abs(fd)[agree].sum(), key
     assert np.abs(fd).max() > 0.3, (key, np.abs(fd).max())
 
