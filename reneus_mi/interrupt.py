@@ -126,14 +126,13 @@ def _watch(fd: int) -> None:
             received = os.read(fd, 64)
         except OSError:
             return
-        if signal.SIGINT not in received:
-            continue
-        with _lock:
-            state = _deferral[-1] if _deferral else None
-            if state is not None and not state['requested'] and _call(state['unsaved']):
-                state['requested'] = True
-                continue
-        _end()
+        for _ in range(received.count(signal.SIGINT)):
+            with _lock:
+                state = _deferral[-1] if _deferral else None
+                if state is not None and not state['requested'] and _call(state['unsaved']):
+                    state['requested'] = True
+                    continue
+            _end()
 
 
 def _call(function) -> bool:

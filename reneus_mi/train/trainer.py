@@ -199,6 +199,10 @@ class Trainer:
                         elapsed=self.elapsed)
         self.saved_iteration = self.iteration
 
+    def unsaved(self) -> bool:
+        """Whether steps were made since the latest checkpoint (or the start)."""
+        return self.iteration > (self.saved_iteration or 0)
+
     def kept(self) -> str:
         """What a failed step leaves to continue from, for its message."""
         if self.saved_iteration is None:
@@ -359,7 +363,7 @@ class Trainer:
             # A run from its first step starts its log anew: lines of an attempt killed before
             # its first checkpoint belong to no step of this one.
             with open(self.folder.log, 'a' if self.iteration else 'w') as log, \
-                    interrupt.deferred(unsaved=lambda: self.iteration != self.saved_iteration) as interrupted:
+                    interrupt.deferred(unsaved=self.unsaved) as interrupted:
                 while self.elapsed < self.budget if timed else self.iteration < cfg.iterations:
                     if interrupted():
                         raise KeyboardInterrupt
@@ -381,7 +385,7 @@ class Trainer:
                     self.elapsed += time.perf_counter() - turn
         except KeyboardInterrupt:
             bar.close()
-            if self.iteration != self.saved_iteration:
+            if self.unsaved():
                 self.save_checkpoint()
             raise
         bar.close()

@@ -14,21 +14,25 @@ Cases that would train are refused during validation, before any step.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import shutil
 import re
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 import trimesh
 
-from reneus_mi import evaluate, extract, optimize, scene, synth
+from reneus_mi import evaluate, extract, interrupt, optimize, scene, synth
 from reneus_mi.capture import colmap as capture_colmap, command as capture
 from reneus_mi.render import __main__ as render
+from reneus_mi.train.run_folder import RunFolder
 from tiny import assert_same_state, new_trainer, train_state
 
 TRAIN = ['--iterations', '2', '--checkpoint-every', '1', '--batch-rays', '64', '--warm-up', '1',
@@ -734,6 +738,234 @@ def test_processes_exit_1_with_one_line(world, tmp_path):
     one_error_line(process('capture', world['data'], '-o', tmp_path / 'out', *CAPTURE), 'no photographs')
     assert snapshot(world['data'], world['run']) == before
     assert os.listdir(tmp_path) == []
+
+
+# ================================================================== Ctrl-C
+#: A sitecustomize for the commands' processes: the first call of ``module:function`` (named
+#: in RENEUS_TEST_PAUSE with a marker file and seconds) returns, creates the marker, then
+#: holds the process there: a moment of the command that a test can find and interrupt.
+PAUSE_HOOK = """\
+import importlib, os, time
+_module, _name, _marker, _seconds = os.environ['RENEUS_TEST_PAUSE'].split('|')
+_module = importlib.import_module(_module)
+_original = getattr(_module, _name)
+
+
+def _paused(*args, **kwargs):
+    result = _original(*args, **kwargs)
+    if not os.path.exists(_marker):
+        open(_marker, 'w').close()
+        time.sleep(float(_seconds))
+    return result
+
+
+setattr(_module, _name, _paused)
+"""
+#: Seconds a pause holds when the interrupt must not wait for it (far above the milliseconds
+#: an interrupt takes; a test ends at the interrupt, not after the pause).
+HOLD = 60.0
+
+
+def start(module, *args, tmp_path, pause=None, importtime=False) -> subprocess.Popen:
+    """``python -m reneus_mi.<module>`` as a process; ``pause=('module:function', seconds)``
+    holds it once inside that call (``tmp_path / 'paused'`` marks the moment)."""
+    env = {**os.environ, 'RENEUS_VARIANT': 'llvm_ad_rgb'}
+    if pause:
+        hook = tmp_path / 'hook'
+        hook.mkdir(exist_ok=True)
+        (hook / 'sitecustomize.py').write_text(PAUSE_HOOK)
+        env['PYTHONPATH'] = os.pathsep.join(filter(None, [str(hook), env.get('PYTHONPATH')]))
+        env['RENEUS_TEST_PAUSE'] = '|'.join([*pause[0].split(':'), str(tmp_path / 'paused'), str(pause[1])])
+    flags = ['-X', 'importtime'] if importtime else []
+    return subprocess.Popen([sys.executable, *flags, '-m', f'reneus_mi.{module}', *map(str, args)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(proc, ready, limit=300.0) -> None:
+    """Wait (bounded) until ``ready()``; the process must still be running then."""
+    deadline = time.monotonic() + limit
+    while not ready():
+        assert proc.poll() is None, f'ended before the moment came: {proc.communicate()}'
+        assert time.monotonic() < deadline, 'the moment never came'
+        time.sleep(0.005)
+
+
+def ctrl_c(proc, times=1) -> tuple[str, float]:
+    """Send SIGINT; the process must end with status 130 and one line; return the line and
+    the seconds it took."""
+    sent = time.monotonic()
+    for n in range(times):
+        proc.send_signal(signal.SIGINT)
+        if n + 1 < times:   # apart: the kernel merges a signal sent while one is pending
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(0.5)
+    _, err = proc.communicate(timeout=HOLD + 120)
+    took = time.monotonic() - sent
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith('import time:')]
+    assert proc.returncode == interrupt.STATUS and len(lines) == 1, (proc.returncode, err[-3000:])
+    assert lines[0].startswith('interrupted: ') and 'Traceback' not in err, err[-3000:]
+    return lines[0], took
+
+
+def temporaries(*folders) -> list[str]:
+    return [os.path.join(d, f) for folder in folders for d, dirs, files in os.walk(folder)
+            for f in files + dirs if f.startswith('.tmp-')]
+
+
+def said_state(line: str, out) -> None:
+    """The line names the state the folder is in now, and what it takes."""
+    state = RunFolder(out).state()
+    assert line == f'interrupted: {out} is {state}: {state.advice()}', (line, str(state))
+
+
+CTRL_C_TRAIN = [a if a != '2' else '3' for a in TRAIN]
+
+
+@pytest.mark.parametrize('module, args', [
+    ('optimize', ['{scene}', '-o', '{out}', *TRAIN]),
+    ('render', ['{scene}', '-o', '{out}.png']),
+    ('extract', ['{checkpoint}', '-o', '{out}.ply']),
+    ('evaluate', ['{gt}', '{gt}']),
+    ('scene', ['{data}', '-o', '{out}.xml']),
+    ('synth', ['sphere', '-o', '{out}', '--views', 2, '--res', 8, '--spp', 1]),
+    ('capture', ['{data}', '-o', '{out}']),
+], ids=lambda v: v if isinstance(v, str) else None)
+def test_ctrl_c_while_starting(world, tmp_path, module, args):
+    """Ctrl-C during the imports (Dr.Jit, Mitsuba still loading): one line, nothing written."""
+    values = {**world, 'out': tmp_path / 'out'}
+    proc = start(module, *[str(a).format(**values) for a in args], tmp_path=tmp_path, importtime=True)
+    for line in proc.stderr:      # the imports report as they end; Dr.Jit's come after the handler's
+        if re.search(r'\|\s+drjit', line):
+            break
+    line, _ = ctrl_c(proc)
+    assert line == f'interrupted: {interrupt.NOTHING_HALF_WRITTEN}'
+    assert os.listdir(tmp_path) == []
+
+
+def test_ctrl_c_in_the_first_step(world, tmp_path):
+    """Inside the first step (where a cold cache compiles the kernels): at once, not when the
+    step ends; nothing to continue, and the same command starts the run anew."""
+    out = tmp_path / 'run'
+    proc = start('optimize', world['scene'], '-o', out, *CTRL_C_TRAIN, tmp_path=tmp_path,
+                 pause=('reneus_mi.train.losses:total', HOLD))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    line, took = ctrl_c(proc)
+    assert took < HOLD / 2
+    said_state(line, out)
+    assert RunFolder(out).state().takes_new_run and not temporaries(tmp_path)
+    assert optimize.main([world['scene'], '-o', str(out), *CTRL_C_TRAIN]) == 0
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
+
+
+@pytest.mark.parametrize('times', [1, 2], ids=['once', 'twice'])
+def test_ctrl_c_while_a_checkpoint_is_written(world, tmp_path, times):
+    """Once: the checkpoint being written is finished first (it holds a step); twice: at once,
+    its temporary removed. Either way the folder says what it takes, and that works."""
+    out = tmp_path / 'run'
+    proc = start('optimize', world['scene'], '-o', out, *CTRL_C_TRAIN, tmp_path=tmp_path,
+                 pause=('numpy:savez', 2.0 if times == 1 else HOLD))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    assert temporaries(out)               # the checkpoint is being written
+    line, took = ctrl_c(proc, times)
+    said_state(line, out)
+    assert not temporaries(tmp_path)
+    state = RunFolder(out).state()
+    if times == 1:
+        assert str(state) == 'resumable (checkpoint of step 1)'
+        assert optimize.main(['-o', str(out), '--resume', '--quiet']) == 0
+    else:
+        assert took < HOLD / 2 and state.name == 'new' and not (out / 'checkpoint.npz').exists()
+        assert optimize.main([world['scene'], '-o', str(out), *CTRL_C_TRAIN]) == 0
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
+
+
+def test_ctrl_c_while_meshing(world, tmp_path):
+    """After the last step: at once; the checkpoint holds the run, --resume writes the mesh."""
+    out = tmp_path / 'run'
+    proc = start('optimize', world['scene'], '-o', out, *CTRL_C_TRAIN, tmp_path=tmp_path,
+                 pause=('skimage.measure:marching_cubes', HOLD))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    line, took = ctrl_c(proc)
+    assert took < HOLD / 2
+    said_state(line, out)
+    assert str(RunFolder(out).state()) == 'resumable (checkpoint of step 3)'
+    assert not (out / 'mesh.ply').exists() and not temporaries(tmp_path)
+    assert optimize.main(['-o', str(out), '--resume', '--quiet']) == 0
+    assert (out / 'mesh.ply').exists() and RunFolder(out).state().name == 'finished'
+
+
+def test_ctrl_c_during_synth_leaves_nothing(tmp_path):
+    """Harmful before: the partial folder made the same command refuse."""
+    out = tmp_path / 'data'
+    args = ['sphere', '-o', out, '--views', 2, '--res', 8, '--spp', 1]
+    proc = start('synth', *args, tmp_path=tmp_path, pause=('reneus_mi.data.synth:render_view', HOLD))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    line, took = ctrl_c(proc)
+    assert took < HOLD / 2
+    assert line == f'interrupted: {out} was not written (nothing of it is left); the same command starts again'
+    assert sorted(os.listdir(tmp_path)) == ['hook', 'paused']
+    assert synth.main([str(a) for a in args]) == 0
+    assert (out / 'box' / 'transforms.json').exists()
+
+
+def test_interrupt_wrapped_by_mitsuba_is_one_line(capsys):
+    """In-process (no handler of its own), a KeyboardInterrupt that Mitsuba wrapped in a
+    RuntimeError ends as an interrupt, not as 'error: KeyboardInterrupt()'."""
+    from reneus_mi.errors import exit_on_error
+    with pytest.raises(SystemExit) as exit_info, exit_on_error(RuntimeError):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise RuntimeError('error while performing a custom differentiable operation') from e
+    assert exit_info.value.code == interrupt.STATUS
+    assert capsys.readouterr().err.strip().startswith('interrupted: ')
+
+
+# ============================================================ run states
+def test_rerun_of_a_run_killed_before_its_first_checkpoint_keeps_no_dead_lines(world, tmp_path):
+    """Harmful before: the new run appended its log to the dead attempt's."""
+    out = tmp_path / 'run'
+    proc = start('optimize', world['scene'], '-o', out, *TRAIN, '--iterations', 100000,
+                 '--checkpoint-every', 0, tmp_path=tmp_path)
+    wait_for(proc, lambda: len(RunFolder(out).read_log()) >= 2)
+    proc.kill()
+    proc.communicate()
+    assert RunFolder(out).state().name == 'new'
+    assert optimize.main([world['scene'], '-o', str(out), *CTRL_C_TRAIN]) == 0
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
+
+
+#: A loss above 0.5x its lowest value counts as diverging: every step after warm-up does.
+DIVERGE = ['--divergence-factor', '0.5']
+
+
+def test_diverged_before_its_first_checkpoint(world, tmp_path):
+    """Harmful before: the message named a checkpoint never written, and the folder then
+    refused both a new run and --resume."""
+    out = tmp_path / 'run'
+    message = refused(optimize.main, [world['scene'], '-o', out, *TRAIN, '--checkpoint-every', 0, *DIVERGE],
+                      'step 1: the loss', 'diverging; no checkpoint was written yet', '--learning-rate',
+                      f'{out}: nothing to continue: a new run (without --resume) starts in it')
+    state = RunFolder(out).state()
+    assert state.name == 'failed' and state.reason in message and not state.checkpoint
+    refused(optimize.main, ['-o', out, '--resume', '--quiet'], f'{out}: nothing to resume (failed (step 1',
+            'a new run (without --resume) starts in it', watch=[out])
+    assert optimize.main([world['scene'], '-o', str(out), *TRAIN]) == 0
+    assert RunFolder(out).state().name == 'finished'
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2]
+
+
+def test_diverged_after_a_checkpoint(world, tmp_path):
+    out = tmp_path / 'run'
+    refused(optimize.main, [world['scene'], '-o', out, *CTRL_C_TRAIN, '--warm-up', 2, *DIVERGE],
+            'step 2: the loss', f'diverging; the checkpoint of step 2 ({out}/checkpoint.npz) is kept',
+            f'{out}: continue it from its checkpoint with --resume, after changing what failed')
+    assert str(RunFolder(out).state()).startswith('failed (step 2: the loss')
+    refused(optimize.main, [world['scene'], '-o', out, *TRAIN], f'{out} already holds a run (failed (step 2',
+            'checkpoint of step 2)', 'continue it from its checkpoint with --resume', watch=[out])
+    assert optimize.main(['-o', str(out), '--resume', '--quiet', '--divergence-factor', '50']) == 0
+    assert RunFolder(out).state().name == 'finished'
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
 
 
 # ============================================ what a resumed run must survive
