@@ -17,7 +17,7 @@ import zipfile
 import numpy as np
 
 from reneus_mi import interrupt
-from reneus_mi.errors import ReneusError, user_message
+from reneus_mi.errors import ReneusError
 
 
 @contextlib.contextmanager
@@ -46,8 +46,6 @@ def _naming(path: str, tmp: str):
         if e.filename in (None, tmp):
             raise OSError(e.errno, e.strerror or str(e), path) from None
         raise
-    except RuntimeError as e:  # Mitsuba's writers
-        raise ReneusError(f'{path}: cannot write the file ({user_message(e).replace(tmp, path)})') from None
 
 
 @contextlib.contextmanager
@@ -81,6 +79,17 @@ def atomic_open(path: str | os.PathLike, mode: str = 'wb'):
     """Open a temporary file beside ``path``; on success rename it over ``path``."""
     with atomic_path(path) as tmp, open(tmp, mode) as f:
         yield f
+
+
+def atomic_mitsuba_write(path: str | os.PathLike, write) -> None:
+    """Write with one of Mitsuba's writers (``write(stream)``, e.g. ``bitmap.write`` or
+    ``mesh.write_ply``) through a Python file: Mitsuba's file streams do not report a full
+    disk, Python's do (naming ``path``)."""
+    import mitsuba as mi
+    stream = mi.MemoryStream()
+    write(stream)
+    with atomic_open(path, 'wb') as f:
+        f.write(bytes(stream.raw_buffer()))
 
 
 def atomic_savez(path: str | os.PathLike, **arrays) -> None:

@@ -15,7 +15,7 @@ import warnings
 from reneus_mi import guards
 from reneus_mi.data import load_dataset
 from reneus_mi.data.scene_xml import write_scene
-from reneus_mi.errors import exit_on_error
+from reneus_mi.errors import ReneusError, exit_on_error
 
 
 def _literal(text: str) -> bool | int | float | str:
@@ -48,6 +48,10 @@ def main(argv: list[str] | None = None) -> int:
                              'model.render.max_depth=3, model.field.hidden=64 or model.field=hashgrid, '
                              'typed as reneus_mi.config declares it (repeatable; for another '
                              "--integrator: NAME=VALUE, that plugin's property)")
+    parser.add_argument('--max-image-size', type=int, default=0, metavar='N',
+                        help='read the photographs reduced to at most N pixels on a side (they are '
+                             'read to check the cameras and masks; lowers the memory they take; the '
+                             "scene's camera takes that size; default: as they are)")
     parser.add_argument('--overwrite', action='store_true', help='replace an existing scene file')
     args = parser.parse_args(argv)
     with exit_on_error():
@@ -66,7 +70,9 @@ def main(argv: list[str] | None = None) -> int:
                 if not sep or not name:
                     parser.error(f'--set {text!r}: expected NAME=VALUE')
                 settings[name] = _literal(value)
-        ds = load_dataset(args.data_dir, need_container=False)
+        if args.max_image_size < 0:
+            raise ReneusError(f'--max-image-size {args.max_image_size}: expected >= 0')
+        ds = load_dataset(args.data_dir, need_container=False, max_size=args.max_image_size)
         if ds.container is None:
             warnings.warn(f"{args.data_dir}: dataset names no container mesh; "
                           "the scene has none")

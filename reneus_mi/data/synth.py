@@ -39,7 +39,7 @@ from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.data.masks import container_masks
 from reneus_mi.geometry.container import container_shape, shading_mesh
 from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_folder, atomic_path, atomic_write_text
+from reneus_mi.io import atomic_folder, atomic_mitsuba_write, atomic_path, atomic_write_text
 from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 
@@ -158,8 +158,7 @@ def write_object(mesh: trimesh.Trimesh, path: str) -> None:
     params.update()
     shape.recompute_vertex_normals()
     shape.add_attribute('vertex_color', 3, mi.Float(albedo.astype(np.float32).ravel()))
-    with atomic_path(path) as tmp:
-        shape.write_ply(tmp)
+    atomic_mitsuba_write(path, shape.write_ply)
 
 
 def write_container(container: trimesh.Trimesh, path: str, normals: bool) -> None:
@@ -303,8 +302,7 @@ def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=
                                               .astype(np.float32).ravel())
         params.update()
         out.container = target
-        with atomic_path(target) as tmp:
-            shape.write_ply(tmp)
+        atomic_mitsuba_write(target, shape.write_ply)
     return out
 
 

@@ -69,8 +69,9 @@ class RunSpec:
         from reneus_mi.data import load_dataset
         from reneus_mi.data.dataset import check_same_dataset
         if self.data_fingerprint is not None:
-            check_same_dataset(self.data_fingerprint, load_dataset(data, need_container=False),
-                               f'--data {data}: not the dataset this run was started on')
+            moved = load_dataset(data, need_container=False, max_size=self.config.train.max_image_size)
+            check_same_dataset(self.data_fingerprint, moved, f'--data {data}: not the dataset this run was '
+                               'started on')
         return dataclasses.replace(self, data=data)
 
 
@@ -102,6 +103,8 @@ def make_trainer(spec: RunSpec, out: str, scene_path: str | None = None):
     from reneus_mi.data import load_dataset
     from reneus_mi.data.dataset import dataset_fingerprint
     from reneus_mi.render.loading import check_field_reaches, load_scene, reneus_integrator
+    from reneus_mi.geometry.surface import check_resolution
+    from reneus_mi.train.pixel_sampler import BYTES_PER_PIXEL
     from reneus_mi.train.trainer import BUDGET_RANGE, Trainer, check_batch
     scene_path = scene_path or spec.scene
     scene = load_scene(scene_path)
@@ -110,7 +113,9 @@ def make_trainer(spec: RunSpec, out: str, scene_path: str | None = None):
     train = spec.config.train
     check_batch(train.batch_rays * (BUDGET_RANGE if train.sample_budget else 1), spec.config.model,
                 '--batch-rays' + (' (x8: the largest batch under --sample-budget)' if train.sample_budget else ''))
-    dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus')
+    check_resolution(train.mesh_resolution, '--mesh-resolution')
+    dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus',
+                           max_size=train.max_image_size, extra_per_pixel=BYTES_PER_PIXEL)
     if spec.data_fingerprint is None:
         spec.data_fingerprint = dataset_fingerprint(dataset)
     frame = integrator.frame_of(scene)

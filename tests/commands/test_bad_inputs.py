@@ -1079,3 +1079,196 @@ def test_resume_with_moved_data(world, run_copy, tmp_path):
     shutil.copytree(world['data'], moved)
     assert optimize.main(['-o', str(run_copy), '--resume', '--quiet', '--data', str(moved)]) == 0
     assert json.loads((run_copy / 'config.json').read_text())['data'] == str(moved)
+
+
+@pytest.mark.parametrize('moved', ['data', 'scene', 'both'])
+def test_resume_after_the_scene_or_its_data_moved(world, tmp_path, moved):
+    """A scene written by `scene` names the container inside the dataset folder; the run keeps
+    a copy of its scene and the files it names, so neither move needs config.json edited."""
+    data, xml = tmp_path / 'data', tmp_path / 'scenes' / 'specimen.xml'
+    shutil.copytree(world['data'], data)
+    (tmp_path / 'scenes').mkdir()
+    assert scene.main([str(data), '-o', str(xml), '--preset', 'tiny']) == 0
+    out = tmp_path / 'run'
+    assert optimize.main([str(xml), '-o', str(out), *TRAIN]) == 0
+    more = ['-o', str(out), '--resume', '--quiet', '--iterations', '3']
+    if moved in ('data', 'both'):
+        os.rename(data, tmp_path / 'moved')
+        more += ['--data', str(tmp_path / 'moved')]
+    if moved in ('scene', 'both'):
+        os.rename(tmp_path / 'scenes', tmp_path / 'elsewhere')
+    assert optimize.main(more) == 0
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
+    assert RunFolder(out).state().name == 'finished'
+
+
+# ========================================== sizes checked before they are spent
+def png_header(path, width: int, height: int) -> None:
+    """A PNG that states ``width`` x ``height`` RGBA in its header and holds no pixels: a
+    photograph too large to make in a test, which a check must refuse before decoding it."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack('>I', len(data)) + kind + data + struct.pack('>I', zlib.crc32(kind + data))
+    path.write_bytes(b'\x89PNG\r\n\x1a\n' + chunk(b'IHDR', struct.pack('>IIBBBBB', width, height, 8, 6, 0, 0, 0))
+                     + chunk(b'IDAT', zlib.compress(b'')) + chunk(b'IEND', b''))
+
+
+def test_optimize_photographs_beyond_memory(world, data, tmp_path, small_machine):
+    """Harmful before: photographs were decoded unchecked (four of 6000x4000 peaked at 4-8 GB)."""
+    for name in os.listdir(data / 'images'):
+        png_header(data / 'images' / name, 6000, 4000)
+    refused(optimize.main, train(world, data, tmp_path), 'transforms.json: 12 photographs of 6000x4000',
+            'needs about', 'this machine has 8 GiB', 'lower it with --max-image-size N', watch=[tmp_path])
+    # The option it names lowers the figure below the machine's: the photographs are then read
+    # (and these, which hold no pixels, refused as such).
+    refused(optimize.main, train(world, data, tmp_path, '--max-image-size', 1000), 'r_000.png',
+            'unreadable image', watch=[tmp_path])
+
+
+def test_scene_photographs_beyond_memory(world, data, tmp_path, small_machine):
+    png_header(data / 'images' / 'r_003.png', 60000, 40000)
+    refused(scene.main, [data, '-o', tmp_path / 'scene.xml'], '12 photographs of 16x16',
+            'lower it with --max-image-size N', watch=[tmp_path])
+
+
+def test_optimize_max_image_size_trains_on_reduced_photographs(world, tmp_path):
+    out = tmp_path / 'run'
+    assert optimize.main([world['scene'], '-o', str(out), *TRAIN, '--max-image-size', '8']) == 0
+    fingerprint = json.loads((out / 'config.json').read_text())['data_fingerprint']
+    assert (fingerprint['width'], fingerprint['height']) == (8, 8)
+
+
+@pytest.mark.parametrize('args, parts', [
+    (['--mesh-resolution', 100000], ['--mesh-resolution 100000', '32-bit index limit']),
+    (['--set', 'model.sampler.occupancy_resolution=2000'],
+     ['model.sampler.occupancy_resolution=2000 (8,000,000,000 cells)', '32-bit index limit']),
+    (['--set', 'model.field.hidden=100000'], ['a neus field of', 'hidden=100000', 'model.field.<name>',
+                                               '32-bit index limit']),
+], ids=['mesh_resolution', 'occupancy_grid', 'field_width'])
+def test_optimize_sizes_beyond_indices_before_training(world, tmp_path, args, parts):
+    """Harmful before: a large --mesh-resolution died with a traceback after the whole training."""
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, *args], *parts, watch=[tmp_path])
+
+
+@pytest.mark.parametrize('args, parts', [
+    (['--mesh-resolution', 1600], ['--mesh-resolution 1600', 'needs about']),
+    (['--set', 'model.field.hidden=20000'], ['a neus field of', 'hidden=20000', 'needs about']),
+], ids=['mesh_resolution', 'field_width'])
+def test_optimize_sizes_beyond_memory_before_training(world, tmp_path, small_machine, args, parts):
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, *args], *parts,
+            'this machine has 8 GiB', watch=[tmp_path])
+
+
+def test_render_field_beyond_memory(world, tmp_path, small_machine):
+    xml = tmp_path / 'scene.xml'
+    xml.write_text(open(world['scene']).read().replace(
+        '<string name="preset" value="tiny" />', '<string name="preset" value="tiny" /><integer name="field_hidden" '
+        'value="20000" />').replace('value="box/', f'value="{world["data"]}/'))
+    refused(render.main, [xml, '-o', tmp_path / 'r.png'], 'a neus field of', 'hidden=20000', 'needs about',
+            watch=[tmp_path])
+
+
+def test_evaluate_points_beyond_memory(world, tmp_path, small_machine):
+    refused(evaluate.main, [world['gt'], world['gt'], '--points', 10**8],
+            '100000000 surface points per mesh (--points)', 'needs about', watch=[tmp_path])
+
+
+# ======================================================= messages name the cause
+@pytest.fixture
+def full_disk(monkeypatch):
+    """Every atomic write lands on /dev/full: the kernel's own 'No space left on device'."""
+    if not os.path.exists('/dev/full'):
+        pytest.skip('no /dev/full on this system')
+    from reneus_mi import io
+
+    def mkstemp(dir, prefix, suffix):
+        path = os.path.join(dir, f'{prefix}full{suffix}')
+        os.symlink('/dev/full', path)
+        return os.open(os.devnull, os.O_RDONLY), path
+    monkeypatch.setattr(io.tempfile, 'mkstemp', mkstemp)
+
+
+def test_extract_onto_a_full_disk_names_the_file(world, tmp_path, full_disk):
+    refused(extract.main, [world['checkpoint'], '-o', tmp_path / 'm.ply', '--resolution', 16],
+            f'{tmp_path}/m.ply: No space left on device', watch=[tmp_path])
+
+
+def test_render_onto_a_full_disk_names_the_file(world, tmp_path, full_disk):
+    """Harmful before: Mitsuba's own image writer reports no error on a full disk (a torn image)."""
+    refused(render.main, [world['scene'], '-o', tmp_path / 'r.png'], f'{tmp_path}/r.png: No space left on device',
+            watch=[tmp_path])
+
+
+def test_optimize_opaque_alpha_says_the_mask_is_the_alpha_channel(world, data, tmp_path):
+    from reneus_mi.data.images import read_image, write_image
+    for name in os.listdir(data / 'images'):
+        rgb, _ = read_image(str(data / 'images' / name))
+        write_image(str(data / 'images' / name), np.concatenate([rgb, np.ones_like(rgb[..., :1])], -1))
+    refused(optimize.main, train(world, data, tmp_path), 'r_000.png: view 0: the mask from its alpha channel '
+            'covers the whole image', 'opaque alpha channel', watch=[tmp_path])
+
+
+@pytest.mark.parametrize('field, parts', [
+    ('{tmp}/absent.npz', ["model.field='{tmp}/absent.npz': no such file"]),
+    ('{checkpoint}', ["is a saved field, and a setting takes a field kind", '--field {checkpoint}']),
+], ids=['missing', 'saved_field'])
+@pytest.mark.parametrize('command', ['optimize', 'scene'])
+def test_set_field_to_a_file(world, tmp_path, command, field, parts):
+    """Harmful before: 'unknown field kind' whether or not the file existed."""
+    values = {'tmp': tmp_path, 'checkpoint': world['checkpoint']}
+    setting = ['--set', f'model.field={field.format(**values)}']
+    argv = ([world['scene'], '-o', tmp_path / 'out', *TRAIN] if command == 'optimize'
+            else [world['data'], '-o', tmp_path / 'scene.xml'])
+    refused({'optimize': optimize.main, 'scene': scene.main}[command], [*argv, *setting],
+            *[p.format(**values) for p in parts], watch=[tmp_path])
+
+
+def test_scene_naming_a_missing_saved_field(world, tmp_path):
+    xml = tmp_path / 'scene.xml'
+    xml.write_text(open(world['scene']).read().replace(
+        '<string name="preset" value="tiny" />', f'<string name="preset" value="tiny" /><string name="field" '
+        f'value="{tmp_path}/gone.npz" />').replace('value="box/', f'value="{world["data"]}/'))
+    refused(render.main, [xml, '-o', tmp_path / 'r.png'], f'{tmp_path}/gone.npz: field file does not exist',
+            watch=[tmp_path])
+
+
+def test_evaluate_mesh_with_a_nan_vertex(world, tmp_path):
+    """Harmful before: reported as 'no surface to sample'."""
+    mesh = trimesh.load(world['gt'], force='mesh', process=False)
+    mesh.vertices[3] = [np.nan, 0.0, 0.0]
+    mesh.export(tmp_path / 'pred.ply')
+    refused(evaluate.main, [tmp_path / 'pred.ply', world['gt']], f'{tmp_path}/pred.ply: the predicted mesh has '
+            '1 vertex(es) with non-finite coordinates (first: vertex 3 at [nan, 0.0, 0.0])', watch=[tmp_path])
+
+
+# ============================================= image formats photographers have
+def test_optimize_on_a_neus_folder_of_tiffs(world, tmp_path):
+    """Harmful before: a NeuS folder of TIFFs was read as '0 images'. 16-bit and 8-bit TIFFs read
+    as the PNGs they were made from."""
+    import cv2
+    from reneus_mi.data import load_dataset
+    data = tmp_path / 'neus'
+    shutil.copytree(world['neus'], data)
+    for i, png in enumerate(sorted((data / 'image').iterdir())):
+        pixels = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(png.with_suffix('.tif')), pixels.astype(np.uint16) * 257 if i % 2 else pixels)
+        png.unlink()
+    for png in (data / 'mask').iterdir():
+        cv2.imwrite(str(png.with_suffix('.tif')), cv2.imread(str(png), cv2.IMREAD_UNCHANGED))
+        png.unlink()
+    np.testing.assert_allclose(load_dataset(str(data)).images, load_dataset(world['neus']).images, atol=1e-6)
+    assert np.array_equal(load_dataset(str(data)).masks, load_dataset(world['neus']).masks)
+    assert optimize.main([str(a) for a in train(world, data, tmp_path)]) == 0
+
+
+@pytest.mark.parametrize('orientation, turn', [(6, 'turn it 90 degrees clockwise'), (3, 'turn it by 180 degrees')])
+def test_optimize_exif_orientation_refused_by_name(world, data, tmp_path, orientation, turn):
+    from PIL import Image
+    path = data / 'images' / 'r_004.png'
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    Image.open(path).save(path, exif=exif.tobytes())
+    refused(optimize.main, train(world, data, tmp_path), f'r_004.png: EXIF orientation {orientation} asks to {turn}',
+            'expected photographs stored upright (orientation 1)', watch=[tmp_path])
