@@ -10,8 +10,8 @@
    the container's place from the first one.
 6. Measure each photograph's exposure, C_out and the print's brightness
    (:mod:`~reneus_mi.capture.exposure`) and normalise the exposures.
-7. Write the dataset (:mod:`~reneus_mi.capture.dataset`), an overlay per photograph and a
-   table of the views.
+7. Write an overlay per photograph, then the dataset (:mod:`~reneus_mi.capture.dataset`;
+   its ``transforms.json`` last), and print a table of the views.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ import warnings
 import cv2
 import numpy as np
 
-from reneus_mi import guards
+from reneus_mi import guards, interrupt
 from reneus_mi.capture import board as board_mod
 from reneus_mi.capture import dataset, photos, settings as settings_mod
 from reneus_mi.capture.board import Board
@@ -160,9 +160,10 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, quiet: bo
                    start=reg.pose)
     light = measure(images, valid, K_out, c2w, board, reg.measured, names)
     _warn_uncovered(names, valid, K_out, c2w, s, reg.pose)
-    report = dataset.write(out, s, board, cal, K_out, light.normalise(images), reg, light)
+    # The overlays first: a transforms.json, written last, says that the dataset is whole.
     dataset.write_overlays(out, images, K_out, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
+    report = dataset.write(out, s, board, cal, K_out, light.normalise(images), reg, light)
     report['seconds'] = time.perf_counter() - start
     if not quiet:
         print(dataset.table(report))
@@ -171,6 +172,15 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, quiet: bo
 
 def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
     print(f'warning: {message}', file=sys.stderr)
+
+
+def _left(out: str) -> str:
+    """What an interrupted capture leaves in ``out``."""
+    if guards.is_dataset_dir(out):
+        return f'{out} holds the whole dataset (its transforms.json is written last)'
+    if os.path.isdir(out):
+        return f'{out} holds no dataset yet (no transforms.json): the same command replaces what it holds'
+    return 'nothing was written'
 
 
 def main(argv=None) -> int:
@@ -187,6 +197,7 @@ def main(argv=None) -> int:
     parser.add_argument('--quiet', action='store_true', help='print no table')
     settings_mod.add_arguments(parser)
     args = parser.parse_args(argv)
+    interrupt.leaving(lambda: _left(args.output))
     with exit_on_error(RuntimeError, cv2.error):
         with warnings.catch_warnings():
             warnings.simplefilter('always')

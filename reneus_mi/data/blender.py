@@ -158,7 +158,7 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
             raise ReneusError(f"{where}: 'transform_matrix' must be a 4x4 matrix of numbers") from None
         c2ws.append(check_c2w(gl, f"{where}: transform_matrix") @ OPENGL_FROM_OPENCV)
         images.append(rgb)
-        masks.append(None if alpha is None else alpha > 0.5)
+        masks.append(None if alpha is None else alpha >= 0.5)  # a reduced pixel half inside is inside
     return assemble(images=images, masks=masks, K=np.stack(Ks), c2w=np.stack(c2ws),
                     names=[os.path.basename(f) for f in files], files=files, root=root,
                     meta_file=path, need_container=need_container,

@@ -141,7 +141,7 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
         if mask_files:
             mask = read_mask(mask_files[i])
             if mask.shape == (height, width) and size != (width, height):
-                mask = resize(mask.astype(np.float32), size) > 0.5
+                mask = resize(mask.astype(np.float32), size) >= 0.5  # half inside is inside
             masks.append(mask)
     return assemble(images=images, masks=masks if mask_files else [None] * n,
                     K=np.stack(scaled), c2w=np.stack(c2ws), names=[os.path.basename(f) for f in files],
