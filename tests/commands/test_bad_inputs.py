@@ -792,7 +792,9 @@ def wait_for(proc, ready, limit=300.0) -> None:
     deadline = time.monotonic() + limit
     while not ready():
         assert proc.poll() is None, f'ended before the moment came: {proc.communicate()}'
-        assert time.monotonic() < deadline, 'the moment never came'
+        if time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail(f'the moment never came: {proc.communicate()[1][-3000:]}')
         time.sleep(0.005)
 
 
@@ -803,7 +805,11 @@ def ctrl_c(proc, times=1) -> str:
         if n + 1 < times:   # apart: the kernel merges a signal sent while one is pending
             with contextlib.suppress(subprocess.TimeoutExpired):
                 proc.wait(0.5)
-    _, err = proc.communicate(timeout=120)
+    try:
+        _, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:   # a hold that never ends outlives a lost interrupt
+        proc.kill()
+        pytest.fail(f'the interrupt did not end the process: {proc.communicate()[1][-3000:]}')
     lines = [line for line in err.splitlines() if line.strip() and not line.startswith('import time:')]
     assert proc.returncode == interrupt.STATUS and len(lines) == 1, (proc.returncode, err[-3000:])
     assert lines[0].startswith('interrupted: ') and 'Traceback' not in err, err[-3000:]
