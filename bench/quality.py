@@ -10,7 +10,6 @@ and configuration (a preset and a time budget in minutes) it runs, as a user wou
 subprocesses::
 
     python -m reneus_mi.scene DATA/SCENE/VARIANT -o RUNS/SCENE/VARIANT/scene_PRESET.xml --preset PRESET
-        [--set model.render.mode=neus: for a dataset without a container, which optimize refuses otherwise]
     python -m reneus_mi.optimize scene_PRESET.xml -o RUN --max-minutes M --quiet
     python -m reneus_mi.evaluate RUN/mesh.ply DATA/SCENE/gt.ply --json RUN/evaluate.json [--postprocess P]
 
@@ -121,12 +120,9 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
         shutil.rmtree(run)
     os.makedirs(folder, exist_ok=True)
     xml = os.path.join(folder, f'scene_{preset}.xml')
-    with open(os.path.join(data, 'transforms.json')) as f:
-        # Without a container the README's path is NeuS's (optimize says so when it is not).
-        neus = [] if json.load(f).get('mesh_outside') else ['--set', 'model.render.mode=neus']
     py = sys.executable
     with open(os.path.join(folder, f'{_tag(preset, minutes)}.log'), 'w') as log:
-        steps = [[py, '-m', 'reneus_mi.scene', data, '-o', xml, '--preset', preset, *neus, '--overwrite'],
+        steps = [[py, '-m', 'reneus_mi.scene', data, '-o', xml, '--preset', preset, '--overwrite'],
                  [py, '-m', 'reneus_mi.optimize', xml, '-o', run, '--max-minutes', f'{minutes:g}', '--quiet'],
                  [py, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation,
                   *(['--postprocess', postprocess] if postprocess else [])]]
@@ -238,11 +234,11 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, ended: di
     lines += ['Data: `bench/blender_set.py` (Blender Cycles, a glass block IOR 1.45 exported by '
               "Blender itself, constant world 0.8, 48 views at 128 px; each scene's `scene.json` "
               'says how its block file was written). Each row is the README\'s path, in subprocesses: '
-              '`python -m reneus_mi.scene DATA -o scene.xml --preset P` (and `--set model.render.mode=neus` without '
-              'the block: optimize refuses a scene without a container otherwise), '
+              '`python -m reneus_mi.scene DATA -o scene.xml --preset P` (without the block it writes a plain '
+              'NeuS scene), '
               '`python -m reneus_mi.optimize scene.xml -o RUN --max-minutes M --quiet`, '
               '`python -m reneus_mi.evaluate RUN/mesh.ply GT --json ...`. Chamfer-L1 x100 is '
-              "evaluate's, after its clean-up (`--postprocess "
+              "evaluate's, of the run's mesh (`--postprocess "
               f"{', '.join(sorted({r['postprocess'] for r in rows if r.get('postprocess')})) or '-'}`); "
               "components are those of the run's `mesh.ply` as the run wrote it. "
               'Pictures: the mesh (left) beside the ground truth (right).', '']

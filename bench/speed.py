@@ -1,6 +1,7 @@
 """Training speed and time to quality, per preset and device.
 
-    python bench/speed.py [--presets fast cpu paper] [--minutes 10] [--points 0.5 1 2 5 10]
+    python bench/speed.py [--presets fast cpu paper fast:train.refine.ior=true] [--minutes 10]
+                          [--points 0.5 1 2 5 10]
                           [--views 48] [--res 128] [--object insect] [--out runs/speed] [--doc docs]
                           [--set train.sample_budget=49152 model.render.rr_threshold=0.2 ...]
 
@@ -11,7 +12,8 @@ its first step with the kernels compiled (the compilation is timed apart: the
 first step's time minus a steady step's). At each of ``--points`` (minutes) the
 mesh is extracted and compared with the ground truth (Chamfer-L1 x100, largest
 component); that evaluation is not counted in the wall clock. Reported per
-preset: step time, camera rays/s, field samples/s, peak resident memory,
+preset (a row ``PRESET:PATH=VALUE,...`` is a preset with settings of its own, e.g. a
+refining run): step time, camera rays/s, field samples/s, peak resident memory,
 compile time and the Chamfer curve. Writes ``DOC/speed.md`` (with the command
 and the device) and ``DOC/speed.png`` (the curves; needs matplotlib).
 """
@@ -52,6 +54,12 @@ def dataset(args) -> str:
     return os.path.join(folder, 'box')
 
 
+def row(entry: str) -> tuple[str, list[str]]:
+    """``PRESET[:PATH=VALUE,...]``: the preset and the row's own settings."""
+    name, _, settings = entry.partition(':')
+    return name, [item for item in settings.split(',') if item]
+
+
 def child(args) -> None:
     """One preset: train, evaluate at the time points, print one JSON line."""
     import drjit as dr
@@ -62,17 +70,19 @@ def child(args) -> None:
     from reneus_mi.data import load_dataset
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh
-    from reneus_mi.geometry.surface import postprocess
+    from reneus_mi.geometry.surface import components
     from reneus_mi.train.runs import spec_of_scene
     from reneus_mi.data.scene_xml import write_scene
 
     data = dataset(args)
-    xml = os.path.join(args.out, f'scene_{args.one}.xml')
-    write_scene(load_dataset(data), xml, preset=args.one)
+    name, own = row(args.one)
+    tag = args.one.replace(':', '_').replace('=', '-').replace(',', '_')
+    xml = os.path.join(args.out, f'scene_{tag}.xml')
+    write_scene(load_dataset(data), xml, preset=name)
     spec = spec_of_scene(xml, None)
     spec.config, _ = with_settings(replace(spec.config, **{'train.iterations': 10 ** 7, 'train.validate_every': 0,
-                                                           'train.checkpoint_every': 0}), args.set)
-    run_dir = os.path.join(args.out, args.one)
+                                                           'train.checkpoint_every': 0}), args.set + own)
+    run_dir = os.path.join(args.out, tag)
     trainer = runs.make_trainer(spec, run_dir)
     gt = load_mesh(load_dataset(data).gt_mesh)
     points = sorted(args.points)
@@ -88,14 +98,16 @@ def child(args) -> None:
         rays += stats.rays
         while evaluated < len(points) and clock >= 60.0 * points[evaluated]:
             try:
-                mesh = postprocess(trainer.write_mesh(os.path.join(run_dir, f'mesh_{points[evaluated]}min.ply'),
-                                                      resolution=args.mesh_resolution), 'largest')
-                value = chamfer(mesh, gt)['chamfer']
+                # The run's own clean-up (the preset's postprocess) on the mesh it would write.
+                mesh = trainer.write_mesh(os.path.join(run_dir, f'mesh_{points[evaluated]}min.ply'),
+                                          resolution=args.mesh_resolution)
+                value, pieces = chamfer(mesh, gt)['chamfer'], components(mesh)
             except ValueError:   # no surface yet
-                value = float('nan')
-            curve.append({'minutes': points[evaluated], 'iterations': trainer.iteration, 'chamfer': value})
-            print(f'[{args.one}] {points[evaluated]} min, {trainer.iteration} it: Chamfer x100 {value:.3f}',
-                  file=sys.stderr, flush=True)
+                value, pieces = float('nan'), 0
+            curve.append({'minutes': points[evaluated], 'iterations': trainer.iteration, 'chamfer': value,
+                          'components': pieces})
+            print(f'[{args.one}] {points[evaluated]} min, {trainer.iteration} it: Chamfer x100 {value:.3f}, '
+                  f'{pieces} component(s)', file=sys.stderr, flush=True)
             evaluated += 1
     dr.sync_thread()
     steady = float(np.median(steps))
@@ -116,7 +128,8 @@ def write_doc(results: list[dict], args, command: str, dev: str, load: float) ->
              f'- Scene: the generator\'s {args.object} in a glass block (IOR 1.45, ambient 0.8), '
              f'{args.views} views at {args.res} px, {args.spp} spp; D_re = 2.',
              '- Wall clock from the first step with compiled kernels; mesh evaluation (marching cubes at '
-             f'{args.mesh_resolution}^3, largest component, Chamfer-L1 x100) not counted.', '',
+             f'{args.mesh_resolution}^3, the run\'s clean-up, Chamfer-L1 x100 and in brackets the '
+             'connected components) not counted.', '',
              '| preset | device | step (s) | camera rays/s | samples/s | peak RSS (MB) | compile (s) | '
              + ' | '.join(f'CD @ {p:g} min' for p in sorted(args.points)) + ' |',
              '| --- ' * (7 + len(args.points)) + '|']
@@ -124,8 +137,9 @@ def write_doc(results: list[dict], args, command: str, dev: str, load: float) ->
         if 'error' in r:
             lines.append(f"| {r['preset']} | {dev} | {r['error']} |")
             continue
-        cds = {c['minutes']: c['chamfer'] for c in r['curve']}
-        cells = ' | '.join('—' if not np.isfinite(cds.get(p, np.nan)) else f'{cds[p]:.2f}' for p in sorted(args.points))
+        cds = {c['minutes']: c for c in r['curve']}
+        cells = ' | '.join('—' if not np.isfinite(cds.get(p, {}).get('chamfer', np.nan))
+                           else f"{cds[p]['chamfer']:.2f} ({cds[p]['components']})" for p in sorted(args.points))
         lines.append(f"| {r['preset']} | {dev} | {r['step_s']:.3f} | {r['rays_per_s']:.0f} | "
                      f"{r['samples_per_s'] / 1e3:.0f} k | {r['peak_rss_mb']:.0f} | {r['compile_s']:.1f} | {cells} |")
     lines += ['', '`—`: no surface yet (or the run did not reach that point).', '',
@@ -154,7 +168,9 @@ def write_doc(results: list[dict], args, command: str, dev: str, load: float) ->
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    p.add_argument('--presets', nargs='+', default=['fast', 'cpu', 'paper'])
+    p.add_argument('--presets', nargs='+', default=['fast', 'cpu', 'paper'],
+                   help='rows: a preset, or PRESET:PATH=VALUE,... for one with its own settings '
+                        '(e.g. fast:train.refine.ior=true)')
     p.add_argument('--minutes', type=float, default=10.0, help='wall clock of training per preset')
     p.add_argument('--points', nargs='+', type=float, default=[0.5, 1, 2, 5, 10],
                    help='minutes at which the mesh is evaluated')
@@ -176,7 +192,7 @@ def main(argv=None) -> int:
         return 0
     import reneus_mi  # noqa: F401
     from reneus_mi.presets import PRESETS
-    unknown = [n for n in args.presets if n not in PRESETS]
+    unknown = [n for n in args.presets if row(n)[0] not in PRESETS]
     if unknown:
         p.error(f"--presets {' '.join(unknown)}: expected some of {', '.join(PRESETS)}")
     command = 'python bench/speed.py ' + ' '.join(sys.argv[1:] if argv is None else argv)

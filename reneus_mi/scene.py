@@ -73,9 +73,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.max_image_size < 0:
             raise ReneusError(f'--max-image-size {args.max_image_size}: expected >= 0')
         ds = load_dataset(args.data_dir, need_container=False, max_size=args.max_image_size)
+        if ds.container is None and args.integrator == 'reneus' and settings.get('mode', 'neus') != 'neus':
+            raise ReneusError(f"{args.data_dir}: dataset names no container mesh (no 'mesh_outside'), "
+                              f"but --set model.render.mode={settings['mode']} traces one; expected a "
+                              'dataset with its container, or mode neus')
         if ds.container is None:
-            warnings.warn(f"{args.data_dir}: dataset names no container mesh; "
-                          "the scene has none")
+            warnings.warn(f"{args.data_dir}: dataset names no container mesh; the scene has none"
+                          + (' and renders plain NeuS (mode neus)' if args.integrator == 'reneus' else ''))
+            if args.integrator == 'reneus':
+                settings['mode'] = 'neus'
         write_scene(ds, args.output, integrator=args.integrator, overwrite=args.overwrite, **settings)
     return 0
 

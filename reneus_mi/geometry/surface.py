@@ -26,8 +26,9 @@ POSTPROCESS_MODES = ('clean', 'largest', 'crop', 'none')
 #: :func:`clean` keeps components this many median edge lengths (about two marching-cubes
 #: cells) from the kept surface ...
 CLEAN_GAP = 4.0
-#: ... and components with at least this share of the largest one's area.
-CLEAN_SHARE = 0.1
+#: ... and components with at least this share of the largest one's area; specks under
+#: CLEAN_SPECK of it go even next to the body (a few dozen faces of noise, no part).
+CLEAN_SHARE, CLEAN_SPECK = 0.1, 1e-3
 #: Bytes per grid point of marching cubes: the float32 SDF grid, skimage's
 #: working copies, the vertices and faces. Measured (peak RSS, a sphere,
 #: resolution 64 -> 384): 4.9; doubled and more for surfaces with more faces.
@@ -148,8 +149,8 @@ def largest_component(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """Drop floating fragments, keep the object's parts: the largest component, every
     component within :data:`CLEAN_GAP` median edge lengths of what is kept (thin parts
-    that noise cut off lie next to the body: kept link by link), and any component of
-    at least :data:`CLEAN_SHARE` of the largest's area (a real second part)."""
+    that noise cut off lie next to the body: kept link by link) unless it is a speck, and
+    any component of at least :data:`CLEAN_SHARE` of the largest's area (a real second part)."""
     from scipy.spatial import cKDTree
 
     if len(mesh.faces) == 0:
@@ -163,7 +164,7 @@ def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     grown = True
     while grown and not keep.all():
         tree = cKDTree(mesh.vertices[np.concatenate([vertices[c] for c in np.flatnonzero(keep)])])
-        near = [c for c in np.flatnonzero(~keep)
+        near = [c for c in np.flatnonzero(~keep & (area >= CLEAN_SPECK * area.max()))
                 if tree.query(mesh.vertices[vertices[c]], distance_upper_bound=gap)[0].min() <= gap]
         keep[near] = True
         grown = bool(near)

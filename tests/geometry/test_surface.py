@@ -91,7 +91,8 @@ def test_crop_removes_what_lies_outside_the_container():
 
 
 def _body_with_fragments():
-    """A body, a leg that noise cut into two pieces beside it, a second real part and a floater."""
+    """A body, a leg that noise cut into two pieces beside it, a second real part, a floater
+    and a speck of noise on the body's skin."""
     body = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
     upper = trimesh.creation.cylinder(radius=0.03, height=0.3, sections=16)
     upper.apply_translation((0.0, 0.0, -0.665))           # 0.01 below the body
@@ -101,17 +102,20 @@ def _body_with_fragments():
     second.apply_translation((0.0, 1.2, 0.0))             # far, but a real part
     floater = trimesh.creation.icosphere(subdivisions=1, radius=0.02)
     floater.apply_translation((0.7, 0.7, 0.0))            # 0.49 from the body
-    return trimesh.util.concatenate([body, upper, lower, second, floater])
+    speck = trimesh.creation.icosphere(subdivisions=1, radius=0.005)
+    speck.apply_translation((0.51, 0.0, 0.0))             # on the body, 1e-4 of its area
+    return trimesh.util.concatenate([body, upper, lower, second, floater, speck])
 
 
 def test_clean_drops_floaters_and_keeps_cut_off_parts():
     from reneus_mi.geometry.surface import components
     mesh = _body_with_fragments()
-    assert components(mesh) == 5
+    assert components(mesh) == 6
     kept = postprocess(mesh, 'clean')
     assert components(kept) == 4
     assert kept.bounds[0][2] < -0.97                           # the leg's lower piece is there
     assert not np.any(np.linalg.norm(kept.vertices - (0.7, 0.7, 0.0), axis=1) < 0.05)
+    assert not np.any(np.linalg.norm(kept.vertices - (0.51, 0.0, 0.0), axis=1) < 0.01)
     # The paper's rule keeps the body alone.
     assert components(postprocess(mesh, 'largest')) == 1
 
@@ -120,4 +124,4 @@ def test_components_counts_pieces_of_a_per_face_mesh():
     from reneus_mi.geometry.surface import components
     soup = _body_with_fragments()
     soup.unmerge_vertices()
-    assert components(soup) == 5 and components(trimesh.Trimesh()) == 0
+    assert components(soup) == 6 and components(trimesh.Trimesh()) == 0
