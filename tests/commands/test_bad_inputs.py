@@ -910,6 +910,20 @@ def test_ctrl_c_during_synth_leaves_nothing(tmp_path):
     assert (out / 'box' / 'transforms.json').exists()
 
 
+def test_ctrl_c_while_capture_writes(shots, tmp_path):
+    """Harmful before: an interrupt after transforms.json (while the overlays were written) was
+    said to leave no dataset, and the same command then refused the folder."""
+    out = tmp_path / 'out'
+    args = [photo_copies(shots, tmp_path / 'photos', 6), '-o', out, *CAPTURE, '--max-size', 320, '--quiet']
+    proc = start('capture', *args, tmp_path=tmp_path, pause=('reneus_mi.capture.dataset:write_overlays', SPIN))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    assert ctrl_c(proc) == (f'interrupted: {out} holds no dataset yet (no transforms.json): '
+                            'the same command replaces what it holds')
+    assert len(os.listdir(out / 'overlays')) == 6 and not temporaries(tmp_path)
+    assert capture.main([str(a) for a in args]) == 0
+    assert (out / 'transforms.json').exists()
+
+
 def test_interrupt_wrapped_by_mitsuba_is_one_line(capsys):
     """In-process (no handler of its own), a KeyboardInterrupt that Mitsuba wrapped in a
     RuntimeError ends as an interrupt, not as 'error: KeyboardInterrupt()'."""
