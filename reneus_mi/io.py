@@ -3,13 +3,17 @@
 Every writer of the package goes through :func:`atomic_path`: the data goes to
 a temporary file beside the target (same folder, so the rename is atomic; same
 extension, so writers that pick the format by extension still work), which is
-renamed over the target once complete, and removed if the write fails.
+renamed over the target once complete, and removed if the write fails. The
+temporary is created with the mode any new file gets (0666 less the umask: 0644
+under the usual 022), not ``tempfile``'s owner-only 0600, so that a team sharing
+a drive can read what a run wrote.
 """
 from __future__ import annotations
 
 import contextlib
 import json
 import os
+import secrets
 import shutil
 import tempfile
 import zipfile
@@ -18,6 +22,9 @@ import numpy as np
 
 from reneus_mi import interrupt
 from reneus_mi.errors import ReneusError
+
+#: The name of every temporary of :func:`atomic_path` starts so (a kill may leave one behind).
+TEMPORARY_PREFIX = '.tmp-'
 
 
 @contextlib.contextmanager
@@ -30,8 +37,7 @@ def atomic_path(path: str | os.PathLike):
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix='.tmp-', suffix=os.path.splitext(path)[1])
-    os.close(fd)
+    tmp = _new_temporary(directory, os.path.splitext(path)[1])
     with interrupt.temporary(tmp), _naming(path, tmp):
         yield tmp
         os.replace(tmp, path)
@@ -48,6 +54,17 @@ def _naming(path: str, tmp: str):
         raise
 
 
+def _new_temporary(directory: str, suffix: str) -> str:
+    """Create an empty, new temporary file in ``directory``; the umask sets its mode."""
+    while True:
+        tmp = os.path.join(directory, f'{TEMPORARY_PREFIX}{secrets.token_hex(6)}{suffix}')
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
+
+
 @contextlib.contextmanager
 def atomic_folder(path: str | os.PathLike):
     """Yield a temporary folder beside ``path``; on success it becomes ``path``, whole.
@@ -59,14 +76,14 @@ def atomic_folder(path: str | os.PathLike):
     path = os.path.abspath(os.fspath(path))
     parent = os.path.dirname(path)
     os.makedirs(parent, exist_ok=True)
-    tmp = tempfile.mkdtemp(dir=parent, prefix='.tmp-')
+    tmp = tempfile.mkdtemp(dir=parent, prefix=TEMPORARY_PREFIX)
     mask = os.umask(0)
     os.umask(mask)
     os.chmod(tmp, 0o777 & ~mask)
     with interrupt.temporary(tmp), _naming(path, tmp):
         yield tmp
         if os.path.isdir(path) and os.listdir(path):
-            with interrupt.temporary(tempfile.mkdtemp(dir=parent, prefix='.tmp-')) as old:
+            with interrupt.temporary(tempfile.mkdtemp(dir=parent, prefix=TEMPORARY_PREFIX)) as old:
                 os.replace(path, os.path.join(old, 'replaced'))
                 os.replace(tmp, path)
                 shutil.rmtree(old)
@@ -126,7 +143,7 @@ def atomic_export(mesh, path: str | os.PathLike) -> None:
 
 def is_temporary(name: str) -> bool:
     """Whether a file name is one of :func:`atomic_path`'s temporaries (left by a kill)."""
-    return os.path.basename(name).startswith('.tmp-')
+    return os.path.basename(name).startswith(TEMPORARY_PREFIX)
 
 
 def load_json(path: str | os.PathLike, what: str = 'file') -> dict:

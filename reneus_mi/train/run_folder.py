@@ -13,7 +13,7 @@ A reconstruction lives in one folder::
     mesh.ply                the final mesh, in the dataset's world coordinates
     container_refined.ply   the container at its refined pose (train.refine.pose)
     result.json             what the run reports when it ends (or why it failed)
-    .lock                   the process that drives the run
+    .lock                   the process that drives the run (a kernel lock: :class:`RunLock`)
 
 :meth:`RunFolder.state` reads from disk, in any process, what the folder holds:
 ``new`` (nothing to continue: empty, or an attempt killed before its first
@@ -27,9 +27,12 @@ skip, continue or report each one.
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import shutil
+import socket
+import time
 import warnings
 from dataclasses import dataclass
 
@@ -152,7 +155,7 @@ class RunFolder:
             return RunState('new')
         owner = self.lock().owner()
         if owner is not None:
-            return RunState('running', f'process {owner}')
+            return RunState('running', owner)
         return self.recorded_state()
 
     def recorded_state(self) -> RunState:
@@ -271,52 +274,96 @@ def recent_psnr(entries: list[dict], n: int = 100) -> float | None:
 class RunLock:
     """An exclusive lock on a run folder, so that two processes never drive one run.
 
-    The lock file holds the owner's process id; a lock whose process is gone
-    (a kill) is taken over. Use as a context manager.
+    The kernel's lock (``flock``) on the lock file: of two processes that ask at
+    the same instant only one gets it, and the kernel drops the lock of a
+    process that dies (a kill; a lost node once its file server notices), so a
+    lock never outlives its owner. The file holds the owner's process id and
+    host for the messages; it is removed on release while still locked, and a
+    process that locked a file no longer at the path (removed meanwhile) tries
+    again. A process that holds the lock may take it again (nested), e.g. a
+    batch worker that holds it while it prepares a specimen and then runs it.
+    Use as a context manager.
     """
 
-    def __init__(self, path: str | os.PathLike):
-        self.path = os.fspath(path)
+    #: How long :meth:`acquire` retries a lock held by someone else: a look at the
+    #: lock (:meth:`owner`, :meth:`RunFolder.state`) holds it for microseconds.
+    GRACE = 0.5
+    #: The locks this process holds: path -> [file descriptor, depth].
+    _held: dict = {}
+
+    def __init__(self, path: str | os.PathLike, what: str = 'run'):
+        self.path = os.path.abspath(os.fspath(path))
+        self.what = what
         self.held = False
 
-    def acquire(self) -> None:
-        os.makedirs(os.path.dirname(self.path), exist_ok=True)
-        for _ in range(2):
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-            except FileExistsError:
-                owner = self.owner()
-                if owner is not None:
-                    raise ReneusError(f'{os.path.dirname(self.path)}: run is in use by process '
-                                      f'{owner}; expected one process per run folder') from None
-                # The owner is gone: the lock is stale.
-                try:
-                    os.unlink(self.path)
-                except FileNotFoundError:
-                    pass
-                continue
-            with os.fdopen(fd, 'w') as f:
-                f.write(str(os.getpid()))
+    def acquire(self, wait: float | None = None) -> None:
+        """Take the lock, retrying for ``wait`` seconds (default :data:`GRACE`) while
+        another process holds it; then refuse in one line naming the holder."""
+        if self.held:
+            return
+        mine = RunLock._held.get(self.path)
+        if mine is not None:
+            mine[1] += 1
             self.held = True
             return
-        raise ReneusError(f'{self.path}: cannot take the run lock')
+        os.makedirs(os.path.dirname(self.path), exist_ok=True)
+        deadline = time.monotonic() + (self.GRACE if wait is None else wait)
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                if time.monotonic() < deadline:
+                    time.sleep(0.02)
+                    continue
+                raise ReneusError(f'{os.path.dirname(self.path)}: {self.what} is in use by '
+                                  f'{self.owner() or "another process"}; expected one process per '
+                                  f'{self.what} folder') from None
+            if _same_file(fd, self.path):
+                break
+            os.close(fd)   # the holder removed this file as it let go: lock the one at the path
+        os.ftruncate(fd, 0)
+        os.write(fd, f'{os.getpid()} {socket.gethostname()}\n'.encode())
+        RunLock._held[self.path] = [fd, 1]
+        self.held = True
 
-    def owner(self) -> int | None:
-        """The process id of a live holder of the lock, None when nobody holds it."""
+    def owner(self) -> str | None:
+        """Who holds the lock ('process N', on another host 'process N on HOST'); None when
+        nobody does."""
+        if self.path in RunLock._held:
+            return f'process {os.getpid()}'
         try:
-            with open(self.path) as f:
-                pid = int(f.read().strip() or 0) or None
-        except (OSError, ValueError):
+            fd = os.open(self.path, os.O_RDONLY)
+        except FileNotFoundError:
             return None
-        return pid if pid is not None and _alive(pid) else None
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                text = os.read(fd, 256).decode(errors='replace').split()
+                pid = text[0] if text else '?'
+                here = len(text) < 2 or text[1] == socket.gethostname()
+                return f'process {pid}' + ('' if here else f' on {text[1]}')
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            return None
+        finally:
+            os.close(fd)
 
     def release(self) -> None:
-        if self.held:
-            self.held = False
-            try:
-                os.unlink(self.path)
-            except FileNotFoundError:
-                pass
+        if not self.held:
+            return
+        self.held = False
+        mine = RunLock._held[self.path]
+        mine[1] -= 1
+        if mine[1]:
+            return
+        del RunLock._held[self.path]
+        try:
+            os.unlink(self.path)
+        except FileNotFoundError:
+            pass
+        os.close(mine[0])
 
     def __enter__(self):
         self.acquire()
@@ -326,11 +373,13 @@ class RunLock:
         self.release()
 
 
-def _alive(pid: int) -> bool:
+def _same_file(fd: int, path: str) -> bool:
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+        a, b = os.fstat(fd), os.stat(path)
+    except FileNotFoundError:
         return False
-    except PermissionError:
-        return True
-    return True
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
+
+
+# A forked child holds none of its parent's locks (the kernel's lock stays the parent's).
+os.register_at_fork(after_in_child=RunLock._held.clear)

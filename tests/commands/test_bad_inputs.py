@@ -30,7 +30,7 @@ import pytest
 import trimesh
 
 from reneus_mi import evaluate, extract, interrupt, optimize, scene, synth
-from reneus_mi.capture import colmap as capture_colmap, command as capture
+from reneus_mi.capture import colmap as capture_colmap, command as capture, pipeline as capture_pipeline
 from reneus_mi.render import __main__ as render
 from reneus_mi.train.run_folder import RunFolder
 from tiny import assert_same_state, new_trainer, train_state
@@ -389,9 +389,18 @@ def test_resume_with_other_data(world, run_copy):
 
 
 def test_resume_while_another_process_holds_the_run(world, run_copy):
-    (run_copy / '.lock').write_text(str(os.getppid()))
-    refused(optimize.main, ['-o', run_copy, '--resume', '--quiet', '--iterations', '3'],
-            'in use by process', watch=[run_copy])
+    """The lock is the kernel's: another process must hold it (a pid in .lock is not a lock)."""
+    hold = ('import sys, time\nfrom reneus_mi.train.run_folder import RunFolder\n'
+            'with RunFolder(sys.argv[1]).lock():\n    print("holding", flush=True)\n    time.sleep(600)')
+    holder = subprocess.Popen([sys.executable, '-c', hold, str(run_copy)], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, 'RENEUS_VARIANT': 'llvm_ad_rgb'})
+    try:
+        assert holder.stdout.readline().strip() == 'holding'
+        refused(optimize.main, ['-o', run_copy, '--resume', '--quiet', '--iterations', '3'],
+                f'in use by process {holder.pid}', watch=[run_copy])
+    finally:
+        holder.kill()
+        holder.wait()
 
 
 def test_resume_nothing_to_resume(tmp_path):
@@ -675,7 +684,7 @@ def test_capture_photograph_without_corners_is_left_out(shots, tmp_path):
     photos = photo_copies(shots, tmp_path / 'photos', 2, blank=1)
     files = sorted(str(p) for p in photos.iterdir())
     with pytest.warns(UserWarning) as caught:
-        detections, size = capture.detect_all(Board(12, 9, 20.0, 15.0), files)
+        detections, size = capture_pipeline.detect_all(Board(12, 9, 20.0, 15.0), files)
     messages = [str(w.message) for w in caught]
     assert messages == ['blank_0.jpg: left out: no board corners found (is the board in the picture, '
                         'sharp and not too oblique?)']
@@ -1199,11 +1208,11 @@ def full_disk(monkeypatch):
         pytest.skip('no /dev/full on this system')
     from reneus_mi import io
 
-    def mkstemp(dir, prefix, suffix):
-        path = os.path.join(dir, f'{prefix}full{suffix}')
+    def new_temporary(directory, suffix):
+        path = os.path.join(directory, f'{io.TEMPORARY_PREFIX}full{suffix}')
         os.symlink('/dev/full', path)
-        return os.open(os.devnull, os.O_RDONLY), path
-    monkeypatch.setattr(io.tempfile, 'mkstemp', mkstemp)
+        return path
+    monkeypatch.setattr(io, '_new_temporary', new_temporary)
 
 
 def test_extract_onto_a_full_disk_names_the_file(world, tmp_path, full_disk):
@@ -1288,3 +1297,31 @@ def test_optimize_exif_orientation_refused_by_name(world, data, tmp_path, orient
     Image.open(path).save(path, exif=exif.tobytes())
     refused(optimize.main, train(world, data, tmp_path), f'r_004.png: EXIF orientation {orientation} asks to {turn}',
             'expected photographs stored upright (orientation 1)', watch=[tmp_path])
+
+
+# ======================================================================== batch
+def test_batch_output_inside_a_dataset(data):
+    from reneus_mi.batch.__main__ import main
+    refused(main, [data.parent, '-o', data / 'runs'], 'lies in the dataset folder', watch=[data.parent])
+
+
+def test_batch_output_holding_other_files(data, tmp_path):
+    from reneus_mi.batch.__main__ import main
+    (tmp_path / 'runs').mkdir()
+    (tmp_path / 'runs' / 'mine.txt').write_text('keep')
+    refused(main, [data.parent, '-o', tmp_path / 'runs'], 'batch folder', 'holds mine.txt', watch=[tmp_path])
+
+
+@pytest.mark.parametrize('args, expected', [
+    (['--redo', 'zz'], ('--redo zz: not in the collection',)),
+    (['--workers', '0'], ('--workers 0: expected a positive number',)),
+    (['--set', 'train.iterations=many'], ("train.iterations='many': expected an integer",)),
+])
+def test_batch_options(data, tmp_path, args, expected):
+    from reneus_mi.batch.__main__ import main
+    refused(main, [data.parent, '-o', tmp_path / 'runs', *args], *expected, watch=[tmp_path])
+
+
+def test_batch_of_one_dataset(data, tmp_path):
+    from reneus_mi.batch.__main__ import main
+    refused(main, [data, '-o', tmp_path / 'runs'], 'is one specimen', watch=[tmp_path])

@@ -8,7 +8,8 @@ import tomllib
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..'))
 COMMANDS = {'optimize': 'reneus_mi.optimize', 'render': 'reneus_mi.render.__main__',
             'extract': 'reneus_mi.extract', 'evaluate': 'reneus_mi.evaluate', 'scene': 'reneus_mi.scene',
-            'synth': 'reneus_mi.synth', 'capture': 'reneus_mi.capture.command'}
+            'synth': 'reneus_mi.synth', 'capture': 'reneus_mi.capture.command',
+            'batch': 'reneus_mi.batch.__main__'}
 
 
 def test_console_scripts_are_the_commands_mains():

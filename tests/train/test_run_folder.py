@@ -9,9 +9,11 @@ import sys
 import numpy as np
 import pytest
 
+import reneus_mi
+
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_path, atomic_write_text
-from reneus_mi.train.run_folder import RunFolder, recent_psnr
+from reneus_mi.train.run_folder import RunFolder, RunState, recent_psnr
 
 
 def test_run_dir(tmp_path):
@@ -27,18 +29,95 @@ def test_run_dir(tmp_path):
     RunFolder(run).check(resume=True)
 
 
+def _holder(path) -> str:
+    return (path / '.lock').read_text().split()[0]
+
+
 def test_run_lock(tmp_path):
     with RunFolder(tmp_path).lock():
-        assert (tmp_path / '.lock').read_text() == str(os.getpid())
-        with pytest.raises(ReneusError, match=f'in use by process {os.getpid()}'):
-            RunFolder(tmp_path).lock().acquire()
+        assert _holder(tmp_path) == str(os.getpid())
+        with RunFolder(tmp_path).lock():          # nested in the process that holds it
+            pass
+        assert RunFolder(tmp_path).lock().owner() == f'process {os.getpid()}'
     assert not (tmp_path / '.lock').exists()
-    # A lock left by a killed process is taken over.
+    # A lock file left by a killed process (no kernel lock on it) is taken over.
     dead = subprocess.run([sys.executable, '-c', 'import os; print(os.getpid())'],
                           capture_output=True, text=True).stdout.strip()
     (tmp_path / '.lock').write_text(dead)
+    assert RunFolder(tmp_path).state().name == 'new'
     with RunFolder(tmp_path).lock():
-        assert (tmp_path / '.lock').read_text() == str(os.getpid())
+        assert _holder(tmp_path) == str(os.getpid())
+
+
+# The lock needs no Mitsuba: its processes import the modules without the package's
+# __init__ (which loads Mitsuba), so that they start in a fraction of a second.
+_HOLD = """
+import os, sys, time, types
+for name in ('reneus_mi', 'reneus_mi.train'):
+    sys.modules[name] = types.ModuleType(name)
+    sys.modules[name].__path__ = [os.path.join(sys.argv[4], *name.split('.'))]
+from reneus_mi.errors import ReneusError
+from reneus_mi.train.run_folder import RunLock
+print('ready', flush=True)
+while not os.path.exists(sys.argv[2]):
+    pass
+hold, end = float(sys.argv[3]), time.monotonic() + float(sys.argv[5])
+while True:
+    try:
+        with RunLock(sys.argv[1]):
+            got = time.monotonic()
+            print('got', flush=True)
+            time.sleep(hold)
+            print('held', got, time.monotonic(), flush=True)
+    except ReneusError as e:
+        print('refused', e, flush=True)
+    if time.monotonic() > end:
+        break
+"""
+
+
+def _holders(folder, n, hold, repeat=0.0):
+    """``n`` processes that ask for the lock of ``folder`` at the same instant, each holding
+    it ``hold`` seconds once it has it, and asking again for ``repeat`` seconds."""
+    go = folder / 'go'
+    root = os.path.dirname(os.path.dirname(reneus_mi.__file__))
+    procs = [subprocess.Popen([sys.executable, '-c', _HOLD, str(folder / '.lock'), str(go), str(hold), root, str(repeat)],
+                              stdout=subprocess.PIPE, text=True) for _ in range(n)]
+    for p in procs:
+        assert p.stdout.readline() == 'ready\n'
+    go.write_text('')
+    return procs
+
+
+def test_run_lock_two_processes_at_once(tmp_path):
+    """Of processes that ask at the same instant, one gets the lock and the others are told
+    who holds it; asking again and again for 3 s, no two ever hold it at once."""
+    procs = _holders(tmp_path, 6, hold=1.0)
+    outs = [p.communicate(timeout=60)[0] for p in procs]
+    got = [o for o in outs if o.startswith('got')]
+    assert len(got) == 1, outs
+    assert all(o.startswith('refused') and 'in use by process' in o for o in outs if o not in got), outs
+    procs = _holders(tmp_path, 6, hold=0.002, repeat=3.0)
+    held = sorted(tuple(map(float, line.split()[1:])) for p in procs
+                  for line in p.communicate(timeout=60)[0].splitlines() if line.startswith('held'))
+    assert len(held) > 20
+    overlaps = [(a, b) for a, b in zip(held, held[1:]) if b[0] < a[1]]
+    assert not overlaps, f'{len(overlaps)} of {len(held)} holds overlap another'
+
+
+def test_run_lock_of_a_killed_process(tmp_path):
+    """The kernel drops a SIGKILLed holder's lock: the run is no longer 'running'."""
+    import signal
+    (proc,) = _holders(tmp_path, 1, hold=600.0)
+    assert proc.stdout.readline().startswith('got')
+    assert RunFolder(tmp_path).state() == RunState('running', f'process {proc.pid}')
+    with pytest.raises(ReneusError, match=f'in use by process {proc.pid}'):
+        RunFolder(tmp_path).lock().acquire()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert (tmp_path / '.lock').exists() and RunFolder(tmp_path).state().name == 'new'
+    with RunFolder(tmp_path).lock():
+        assert _holder(tmp_path) == str(os.getpid())
 
 
 def _checkpoint(folder, step):
