@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import typing
 from dataclasses import dataclass
 
@@ -173,6 +174,10 @@ class TrainConfig:
     """Steps between checkpoints (written atomically; --resume continues from the last)."""
     mesh_resolution: int = 256
     """Marching-cubes grid resolution of the final mesh."""
+    max_image_size: int = 0
+    """Longest side, in pixels, of the photographs as the run fits them: larger ones are
+    reduced as they load (area averaging; cameras and masks follow), which lowers the memory
+    they take (0: as they are)."""
     postprocess: str = 'clean'
     """Mesh post-processing: 'clean' (drop floating fragments, keep parts that noise cut off
     next to the body), 'largest' (keep the largest connected component: the paper), 'crop'
@@ -186,6 +191,7 @@ class TrainConfig:
         check_numbers(self, positive=('iterations', 'batch_rays', 'mesh_resolution', 'log_every',
                                       'learning_rate', 'divergence_factor'),
                       at_least_zero=('sample_budget', 'warm_up', 'anneal_end', 'validate_every', 'checkpoint_every',
+                                     'max_image_size',
                                      'validation_view', 'trans_weight', 'eikonal_weight',
                                      'learning_rate_alpha', 'max_minutes', 'seed'))
         check_choice(self, 'postprocess', POSTPROCESS_MODES)
@@ -302,6 +308,13 @@ def text_value(text: str, kind, path: str):
     ``true``/``false``, numbers separated by commas for a tuple, a field kind's name for the
     field (its defaults); checked by :func:`typed_value`."""
     if kind is FieldConfig:
+        if text not in FIELD_CONFIGS and (text.endswith('.npz') or os.sep in text or os.path.exists(text)):
+            kinds = ', '.join(FIELD_CONFIGS)
+            if not os.path.isfile(text):
+                raise ReneusError(f'{path}={text!r}: no such file; expected a field kind ({kinds})')
+            raise ReneusError(f'{path}={text!r} is a saved field, and a setting takes a field kind ({kinds}); '
+                              f'render a saved field with python -m reneus_mi.render SCENE --field {text}, or '
+                              f'name it in a scene: <string name="field" value="{text}"/>')
         return field_config_class(text, path)()
     value = text
     try:

@@ -55,13 +55,26 @@ def exit_on_error(*extra: type[BaseException]):
 
     Catches library errors (``ValueError``, so :class:`ReneusError`),
     ``OSError`` (a full disk, a permission denied: ordinary failures of the
-    machine) and the ``extra`` types (e.g. ``RuntimeError`` from Mitsuba).
+    machine) and the ``extra`` types (e.g. ``RuntimeError`` from Mitsuba). A
+    ``KeyboardInterrupt`` (where :mod:`reneus_mi.interrupt` has not taken Ctrl-C
+    itself), also one that Mitsuba wrapped, ends with its one line and status 130.
     """
     try:
         yield
+    except KeyboardInterrupt:
+        _interrupted()
     except (ValueError, OSError, *extra) as e:
+        if isinstance(root_cause(e), KeyboardInterrupt):
+            _interrupted()
         text = user_message(e) if isinstance(e, RuntimeError) else _os_text(e)
         raise SystemExit(f'error: {one_line(text)}') from None
+
+
+def _interrupted():
+    import sys
+    from reneus_mi import interrupt
+    print(interrupt.message(), file=sys.stderr)
+    raise SystemExit(interrupt.STATUS) from None
 
 
 def _os_text(e: BaseException) -> str:

@@ -14,10 +14,13 @@ import contextlib
 import json
 import os
 import secrets
+import shutil
+import tempfile
 import zipfile
 
 import numpy as np
 
+from reneus_mi import interrupt
 from reneus_mi.errors import ReneusError
 
 #: The name of every temporary of :func:`atomic_path` starts so (a kill may leave one behind).
@@ -26,17 +29,28 @@ TEMPORARY_PREFIX = '.tmp-'
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
-    """Yield a temporary path beside ``path``; on success rename it over ``path``."""
+    """Yield a temporary path beside ``path``; on success rename it over ``path``.
+
+    The temporary goes if the write fails or the command is interrupted
+    (:func:`reneus_mi.interrupt.temporary`); a failed write (a full disk) names ``path``.
+    """
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
     tmp = _new_temporary(directory, os.path.splitext(path)[1])
-    try:
+    with interrupt.temporary(tmp), _naming(path, tmp):
         yield tmp
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+
+
+@contextlib.contextmanager
+def _naming(path: str, tmp: str):
+    """Errors of a write name the file written, never its temporary or nothing at all."""
+    try:
+        yield
+    except OSError as e:
+        if e.filename in (None, tmp):
+            raise OSError(e.errno, e.strerror or str(e), path) from None
         raise
 
 
@@ -52,10 +66,47 @@ def _new_temporary(directory: str, suffix: str) -> str:
 
 
 @contextlib.contextmanager
+def atomic_folder(path: str | os.PathLike):
+    """Yield a temporary folder beside ``path``; on success it becomes ``path``, whole.
+
+    An empty folder at ``path``, or one the caller owns (an earlier copy it wrote), is
+    replaced. A failure or an interrupt removes the temporary: ``path`` is never left half
+    written. The folder gets the permissions of any new folder (the umask).
+    """
+    path = os.path.abspath(os.fspath(path))
+    parent = os.path.dirname(path)
+    os.makedirs(parent, exist_ok=True)
+    tmp = tempfile.mkdtemp(dir=parent, prefix=TEMPORARY_PREFIX)
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(tmp, 0o777 & ~mask)
+    with interrupt.temporary(tmp), _naming(path, tmp):
+        yield tmp
+        if os.path.isdir(path) and os.listdir(path):
+            with interrupt.temporary(tempfile.mkdtemp(dir=parent, prefix=TEMPORARY_PREFIX)) as old:
+                os.replace(path, os.path.join(old, 'replaced'))
+                os.replace(tmp, path)
+                shutil.rmtree(old)
+        else:
+            os.replace(tmp, path)
+
+
+@contextlib.contextmanager
 def atomic_open(path: str | os.PathLike, mode: str = 'wb'):
     """Open a temporary file beside ``path``; on success rename it over ``path``."""
     with atomic_path(path) as tmp, open(tmp, mode) as f:
         yield f
+
+
+def atomic_mitsuba_write(path: str | os.PathLike, write) -> None:
+    """Write with one of Mitsuba's writers (``write(stream)``, e.g. ``bitmap.write`` or
+    ``mesh.write_ply``) through a Python file: Mitsuba's file streams do not report a full
+    disk, Python's do (naming ``path``)."""
+    import mitsuba as mi
+    stream = mi.MemoryStream()
+    write(stream)
+    with atomic_open(path, 'wb') as f:
+        f.write(bytes(stream.raw_buffer()))
 
 
 def atomic_savez(path: str | os.PathLike, **arrays) -> None:

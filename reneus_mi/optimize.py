@@ -17,7 +17,7 @@ import argparse
 import os
 import sys
 
-from reneus_mi import cli
+from reneus_mi import cli, interrupt
 from reneus_mi.config import TrainConfig
 from reneus_mi.errors import ReneusError, exit_on_error
 
@@ -39,12 +39,17 @@ def main(argv=None) -> int:
                              'as reneus_mi.config declares it)')
     cli.add_arguments(parser, TrainConfig, default_note="the preset's")
     args = parser.parse_args(argv)
-    try:
-        with exit_on_error(RuntimeError):
-            print(run(args))
-    except KeyboardInterrupt:
-        raise SystemExit('interrupted: checkpoint written; continue with --resume') from None
+    with exit_on_error(RuntimeError):
+        print(run(args))
     return 0
+
+
+def left_in(folder) -> str:
+    """What an interrupted run leaves: the folder's state and what it takes next."""
+    if not os.path.isdir(folder.path):
+        return 'nothing was written'
+    state = folder.recorded_state()
+    return f'{folder.path} is {state}: {state.advice()}'
 
 
 def run(args) -> str:
@@ -58,6 +63,8 @@ def run(args) -> str:
     name = 'demo' if args.demo else os.path.splitext(os.path.basename(args.scene or ''))[0]
     out = args.output or os.path.join('runs', name)
     folder = RunFolder(out)
+    interrupt.leaving(lambda: left_in(folder))
+    folder.check_start(args.resume)
     if args.resume:
         spec = runs.read_spec(out)
         if args.scene:
@@ -66,10 +73,6 @@ def run(args) -> str:
         if args.data:
             spec = spec.with_data(os.path.abspath(args.data))
     else:
-        state = folder.state()
-        if state.name != 'new':
-            raise ReneusError(f'{out} already holds a run ({state}); continue it with --resume or choose '
-                              'another --output')
         folder.check(inputs=[args.scene, args.data])
         # The demo's photographs go beside the run folder: no run ever writes where its inputs are.
         scene = demo_scene(os.path.abspath(out).rstrip(os.sep) + '_data') if args.demo else args.scene
@@ -79,7 +82,7 @@ def run(args) -> str:
                                    args.settings)
     result = runs.run(spec, out, resume=args.resume, progress=not args.quiet)
     if 'failure' in result:
-        raise ReneusError(result['failure'])
+        raise ReneusError(f"{result['failure']}; {out}: {folder.state().advice()}")
     cfg = spec.config.train
     ended = (f"stopped by the time budget ({cfg.max_minutes:g} min) after {result['iterations']} iterations"
              if result['stopped_by_budget'] else f"done: {result['iterations']} iterations")
@@ -91,8 +94,7 @@ def run(args) -> str:
              + f"; mesh {result['mesh']}" + (f" ({result['units']})" if 'units' in result else '')
              + (f" and {result['glb']['path']} (for the web)" if 'glb' in result else '')
              + (f"; renders {folder.images}" if cfg.validate_every else '')]
-    from reneus_mi.data import load_dataset
-    gt = load_dataset(spec.data, need_container=False).gt_mesh
+    gt = result.get('ground_truth')
     if gt:
         from reneus_mi.geometry.chamfer import chamfer
         from reneus_mi.geometry.mesh import load_mesh

@@ -54,6 +54,10 @@ def main(argv: list[str] | None = None) -> int:
                              "rays leaving through the bottom see the print (its radiance in "
                              "<scene>_board.exr); 'ambient' leaves it out, the paper's model: they see "
                              "C_out (default: %(default)s)")
+    parser.add_argument('--max-image-size', type=int, default=0, metavar='N',
+                        help='read the photographs reduced to at most N pixels on a side (they are '
+                             'read to check the cameras and masks; lowers the memory they take; the '
+                             "scene's camera takes that size; default: as they are)")
     parser.add_argument('--overwrite', action='store_true', help='replace an existing scene file '
                         '(and its <scene>_container.ply, <scene>_board.exr)')
     args = parser.parse_args(argv)
@@ -73,7 +77,9 @@ def main(argv: list[str] | None = None) -> int:
                 if not sep or not name:
                     parser.error(f'--set {text!r}: expected NAME=VALUE')
                 settings[name] = _literal(value)
-        ds = load_dataset(args.data_dir, need_container=False)
+        if args.max_image_size < 0:
+            raise ReneusError(f'--max-image-size {args.max_image_size}: expected >= 0')
+        ds = load_dataset(args.data_dir, need_container=False, max_size=args.max_image_size)
         if ds.container is None and args.integrator == 'reneus' and settings.get('mode', 'neus') != 'neus':
             raise ReneusError(f"{args.data_dir}: dataset names no container mesh (no 'mesh_outside'), "
                               f"but --set model.render.mode={settings['mode']} traces one; expected a "

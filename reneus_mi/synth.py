@@ -11,6 +11,7 @@ import sys
 
 from reneus_mi.data.objects import CONTAINERS, OBJECTS
 from reneus_mi.data.synth import DEFAULT_MAX_DEPTH, DEFAULT_SPP, ENVIRONMENT, IOR, SUBSETS, make_dataset
+from reneus_mi import interrupt
 from reneus_mi.errors import exit_on_error
 
 
@@ -43,6 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--subsets', nargs='+', choices=SUBSETS, default=list(SUBSETS),
                         help='subsets to render (default: both)')
     args = parser.parse_args(argv)
+    interrupt.leaving(f'{args.out} was not written (nothing of it is left); the same command starts again')
     with exit_on_error():
         result = make_dataset(args.object, args.out, views=args.views, res=args.res,
                               spp=args.spp, seed=args.seed, max_depth=args.max_depth,

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 
 import cv2
 
+from reneus_mi import guards, interrupt
 from reneus_mi.capture import dataset, settings as settings_mod
 from reneus_mi.capture.pipeline import run
 from reneus_mi.errors import exit_on_error
@@ -15,6 +17,15 @@ from reneus_mi.errors import exit_on_error
 
 def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
     print(f'warning: {message}', file=sys.stderr)
+
+
+def _left(out: str) -> str:
+    """What an interrupted capture leaves in ``out``."""
+    if guards.is_dataset_dir(out):
+        return f'{out} holds the whole dataset (its transforms.json is written last)'
+    if os.path.isdir(out):
+        return f'{out} holds no dataset yet (no transforms.json): the same command replaces what it holds'
+    return 'nothing was written'
 
 
 def main(argv=None) -> int:
@@ -31,6 +42,7 @@ def main(argv=None) -> int:
     parser.add_argument('--quiet', action='store_true', help='print no table')
     settings_mod.add_arguments(parser)
     args = parser.parse_args(argv)
+    interrupt.leaving(lambda: _left(args.output))
     with exit_on_error(RuntimeError, cv2.error):
         with warnings.catch_warnings():
             warnings.simplefilter('always')

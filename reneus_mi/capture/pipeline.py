@@ -12,8 +12,8 @@ capture folders.
    the container's place from the first one.
 6. Measure each photograph's exposure, C_out and the print's brightness
    (:mod:`~reneus_mi.capture.exposure`) and normalise the exposures.
-7. Write the dataset (:mod:`~reneus_mi.capture.dataset`), an overlay per photograph and a
-   table of the views.
+7. Write an overlay per photograph, then the dataset (:mod:`~reneus_mi.capture.dataset`;
+   its ``transforms.json`` last: a folder that has one holds the whole dataset).
 """
 from __future__ import annotations
 
@@ -160,8 +160,9 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
                    start=reg.pose)
     light = measure(images, valid, K_out, c2w, board, reg.measured, names)
     _warn_uncovered(names, valid, K_out, c2w, s, reg.pose)
-    report = dataset.write(out, s, board, cal, K_out, light.normalise(images), reg, light)
+    # The overlays first: a transforms.json, written last, says that the dataset is whole.
     dataset.write_overlays(out, images, K_out, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
+    report = dataset.write(out, s, board, cal, K_out, light.normalise(images), reg, light)
     report['seconds'] = time.perf_counter() - start
     return report

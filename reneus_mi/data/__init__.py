@@ -21,13 +21,17 @@ FORMATS = {'blender': blender, 'neus': neus}
 __all__ = ['Dataset', 'load_dataset', 'write_dataset', 'FORMATS']
 
 
-def load_dataset(path: str, *, need_container: bool = True) -> Dataset:
+def load_dataset(path: str, *, need_container: bool = True, max_size: int = 0,
+                 extra_per_pixel: int = 0) -> Dataset:
     """Read the dataset in folder ``path`` (or named by its metadata file).
 
     The format is detected: a ``transforms.json`` (or ``transforms_train.json``)
     means Blender, a ``cameras_sphere.npz`` means NeuS. With ``need_container``
     a dataset without a container mesh is an error; without it, views lacking
-    a mask get an all-True one.
+    a mask get an all-True one. Photographs larger than ``max_size`` pixels on
+    a side are reduced as they load (0: as they are); their memory, and the
+    ``extra_per_pixel`` bytes a caller holds besides, is checked before any is
+    decoded.
     """
     if os.path.basename(path) in (*blender.TRANSFORMS_FILES, neus.CAMERAS_FILE):
         path = os.path.dirname(os.path.abspath(path))
@@ -37,7 +41,8 @@ def load_dataset(path: str, *, need_container: bool = True) -> Dataset:
     for module in (blender, neus):
         found = module.find(path)
         if found is not None:
-            return module.read(found, need_container=need_container)
+            return module.read(found, need_container=need_container, max_size=max_size,
+                               extra_per_pixel=extra_per_pixel)
     raise ReneusError(f"{path}: unknown dataset format (expected {blender.TRANSFORMS_FILES[0]} "
                      f"or {neus.CAMERAS_FILE} in the folder)")
 

@@ -35,7 +35,8 @@ from reneus_mi.io import atomic_write_text
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
                                     has_skew, intrinsics)
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
-from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, write_image
+from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_image, reduced_size, resize,
+                                   write_image)
 
 #: Metadata file names, in order of preference.
 TRANSFORMS_FILES = ('transforms.json', 'transforms_train.json')
@@ -63,7 +64,7 @@ def _image_path(root: str, file_path: str, where: str) -> str:
         if os.path.isfile(path + ext):
             return path + ext
     raise ReneusError(f"{where}: image '{file_path}' is missing (looked for {path} with and "
-                     f"without the extensions {', '.join(IMAGE_EXTENSIONS[:4])})")
+                     f"without the extensions {', '.join(IMAGE_EXTENSIONS[:6])})")
 
 
 def _number(cam: dict, key: str, where: str) -> float:
@@ -109,8 +110,14 @@ def _distortion(cam: dict, where: str):
     return distortion(values, where)
 
 
-def read(path: str, *, need_container: bool = True) -> Dataset:
-    """Read the dataset described by the transforms file ``path``."""
+def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per_pixel: int = 0) -> Dataset:
+    """Read the dataset described by the transforms file ``path``.
+
+    ``max_size`` reduces photographs whose longest side exceeds it (area averaging; the
+    cameras follow). Memory is checked from the images' headers before any is decoded
+    (``extra_per_pixel``: what the caller will hold besides, see
+    :func:`~reneus_mi.data.images.check_images_fit`).
+    """
     root = os.path.dirname(os.path.abspath(path))
     try:
         with open(path) as f:
@@ -121,33 +128,41 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
     if not isinstance(frames, list) or not frames:
         raise ReneusError(f"{path}: expected a non-empty list 'frames'")
     top = {k: meta[k] for k in _INTRINSIC_KEYS if k in meta}
-    images, masks, Ks, c2ws, files = [], [], [], [], []
+    files = []
     for i, frame in enumerate(frames):
         where = f"{path}: frames[{i}]"
         if not isinstance(frame, dict) or 'file_path' not in frame or 'transform_matrix' not in frame:
             raise ReneusError(f"{where}: expected 'file_path' and 'transform_matrix'")
-        file = _image_path(root, str(frame['file_path']), where)
+        files.append(_image_path(root, str(frame['file_path']), where))
+    check_images_fit(files, max_size, path, extra_per_pixel)
+    images, masks, Ks, c2ws = [], [], [], []
+    for i, (frame, file) in enumerate(zip(frames, files)):
+        where = f"{path}: frames[{i}]"
         rgb, alpha = read_image(file)
+        height, width = rgb.shape[:2]
         cam = {**top, **{k: frame[k] for k in _INTRINSIC_KEYS if k in frame}}
-        K = _intrinsics(cam, rgb.shape[1], rgb.shape[0], where)
+        K = _intrinsics(cam, width, height, where)
         dist = _distortion(cam, where)
+        size = reduced_size(width, height, max_size)
+        K_out = np.diag([size[0] / width, size[1] / height, 1.0]) @ K
         if dist is not None:
-            size = (rgb.shape[1], rgb.shape[0])
-            rgb, covered = undistort(rgb, K, dist, K, size)
+            rgb, covered = undistort(rgb, K, dist, K_out, size)
             if alpha is not None:
-                alpha = undistort(alpha, K, dist, K, size)[0] * covered
-        Ks.append(K)
+                alpha = undistort(alpha, K, dist, K_out, size)[0] * covered
+        else:
+            rgb, alpha = resize(rgb, size), None if alpha is None else resize(alpha, size)
+        Ks.append(K_out)
         try:
             gl = np.asarray(frame['transform_matrix'], dtype=np.float64)
         except (TypeError, ValueError):
             raise ReneusError(f"{where}: 'transform_matrix' must be a 4x4 matrix of numbers") from None
         c2ws.append(check_c2w(gl, f"{where}: transform_matrix") @ OPENGL_FROM_OPENCV)
         images.append(rgb)
-        masks.append(None if alpha is None else alpha > 0.5)
-        files.append(file)
+        masks.append(None if alpha is None else alpha >= 0.5)  # a reduced pixel half inside is inside
     return assemble(images=images, masks=masks, K=np.stack(Ks), c2w=np.stack(c2ws),
                     names=[os.path.basename(f) for f in files], files=files, root=root,
                     meta_file=path, need_container=need_container,
+                    mask_sources=['from its alpha channel'] * len(files),
                     **read_extras(meta, root, path))
 
 

@@ -13,7 +13,8 @@ which is the one thing of the scene known in world coordinates:
   :data:`MIN_EXTENT` of the image;
 - a mask read from a file agrees with the container's projection (IoU at
   least :data:`MIN_MASK_IOU`), which catches a view paired with another's
-  camera.
+  camera, and does not cover the whole image where the container does not
+  (an opaque alpha channel).
 
 Messages name the image file, the view and what was expected.
 """
@@ -46,11 +47,12 @@ def check_ior(ior, where: str) -> float:
 
 
 def check_views(container, K: np.ndarray, c2w: np.ndarray, height: int, width: int,
-                files: list[str], given_masks: dict[int, np.ndarray]) -> None:
+                files: list[str], given_masks: dict[int, np.ndarray], mask_sources=None) -> None:
     """Raise naming the first view whose camera does not see ``container`` (a trimesh).
 
     ``files`` name the views; ``given_masks`` maps view indices to masks read
-    from files (computed ones agree by construction).
+    from files (computed ones agree by construction); ``mask_sources[v]`` says
+    where view ``v``'s mask was read ('from its alpha channel', 'from FILE').
     """
     from reneus_mi.geometry.container import inside
     vertices = np.asarray(container.vertices, dtype=np.float64)
@@ -83,10 +85,10 @@ def check_views(container, K: np.ndarray, c2w: np.ndarray, height: int, width: i
                 f"(radius {radius:.3g} at distance {np.linalg.norm(p):.3g}); expected at least "
                 f"{MIN_EXTENT:.0%} of the image: is the container mesh in the cameras' units?")
     if given_masks:
-        _check_masks(container, K, c2w, height, width, files, given_masks)
+        _check_masks(container, K, c2w, height, width, files, given_masks, mask_sources)
 
 
-def _check_masks(container, K, c2w, height, width, files, given_masks) -> None:
+def _check_masks(container, K, c2w, height, width, files, given_masks, sources) -> None:
     import mitsuba as mi
     from reneus_mi.geometry.mesh import mitsuba_mesh
     scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container)})
@@ -98,10 +100,17 @@ def _check_masks(container, K, c2w, height, width, files, given_masks) -> None:
         ray = mi.Ray3f(mi.Point3f(*o.T.astype(np.float32)), mi.Vector3f(*d.T.astype(np.float32)))
         projected = np.array(scene.ray_test(ray)).reshape(ys.shape)
         given = mask[::stride, ::stride]
+        source = f' {sources[v]}' if sources else ''
+        if given.all() and not projected.all():
+            raise ReneusError(
+                f"{files[v]}: view {v}: the mask{source} covers the whole image, but the container "
+                f"covers {projected.mean():.0%} of it; expected the container's pixels only (an opaque "
+                "alpha channel is a mask of everything: save the photographs without alpha, and the "
+                "container's projection is the mask)")
         union = np.sum(projected | given)
         iou = np.sum(projected & given) / union if union else 1.0
         if iou < MIN_MASK_IOU:
             raise ReneusError(
-                f"{files[v]}: view {v}: the mask overlaps the container's projection by IoU "
+                f"{files[v]}: view {v}: the mask{source} overlaps the container's projection by IoU "
                 f"{iou:.2f}; expected at least {MIN_MASK_IOU} (is this image paired with another "
                 "view's camera, or the pose wrong?)")

@@ -289,13 +289,13 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
              need_container: bool, container: str | None = None, ior: float | None = None,
              gt_mesh: str | None = None, scale_mat: np.ndarray | None = None,
              ambient: np.ndarray | None = None, board: PrintedBoard | None = None,
-             units: str | None = None, frame: str | None = None) -> Dataset:
+             units: str | None = None, frame: str | None = None, mask_sources: list[str] | None = None) -> Dataset:
     """Check what a reader found and build the :class:`Dataset`.
 
     ``files`` are the image paths (for messages); ``masks`` may hold None for
     views without one: those are projected from the container, or are all
-    True when there is no container. ``meta_file`` is named when the container
-    is missing.
+    True when there is no container. ``mask_sources`` say where each view's mask
+    came from (for messages). ``meta_file`` is named when the container is missing.
     """
     height, width = images[0].shape[:2]
     for img, path in zip(images, files):
@@ -311,7 +311,7 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
                          "(expected a 'mesh_outside' entry naming a .ply/.obj file)")
     if container is not None:
         check_views(load_container(container), np.asarray(K), np.asarray(c2w), height, width,
-                    files, {i: m for i, m in enumerate(masks) if m is not None})
+                    files, {i: m for i, m in enumerate(masks) if m is not None}, mask_sources)
     missing = [i for i, m in enumerate(masks) if m is None]
     if missing:
         if container is not None:
@@ -320,7 +320,7 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
             computed = np.ones((len(missing), height, width), bool)
         for i, m in zip(missing, computed):
             masks[i] = m
-    ds = Dataset(images=np.stack(images).astype(np.float32), masks=np.stack(masks),
+    ds = Dataset(images=np.stack(images).astype(np.float32, copy=False), masks=np.stack(masks),
                  K=np.asarray(K, np.float64), c2w=np.asarray(c2w, np.float64), names=list(names),
                  root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat,
                  ambient=ambient, masks_measured=not missing, board=board, units=units, frame=frame)

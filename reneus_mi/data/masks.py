@@ -12,6 +12,9 @@ import numpy as np
 from reneus_mi.data.cameras import pixel_rays
 from reneus_mi.geometry.container import container_shape
 
+#: Pixels whose rays are traced in one launch.
+ROWS_PIXELS = 1 << 20
+
 
 def container_masks(path: str, K: np.ndarray, c2w: np.ndarray, height: int, width: int,
                     views: list[int] | None = None) -> np.ndarray:
@@ -21,13 +24,15 @@ def container_masks(path: str, K: np.ndarray, c2w: np.ndarray, height: int, widt
     of them (all by default).
     """
     scene = mi.load_dict({'type': 'scene', 'container': container_shape(path)})
-    views = range(len(K)) if views is None else views
-    ys, xs = np.mgrid[:height, :width]
-    px = np.stack([xs.ravel(), ys.ravel()], axis=1)
-    masks = []
-    for v in views:
-        o, d = pixel_rays(K, c2w, v, px)
-        ray = mi.Ray3f(mi.Point3f(*(mi.Float(o[:, i]) for i in range(3))),
-                       mi.Vector3f(*(mi.Float(d[:, i]) for i in range(3))))
-        masks.append(np.array(scene.ray_test(ray)).reshape(height, width))
-    return np.stack(masks) if masks else np.zeros((0, height, width), bool)
+    views = list(range(len(K)) if views is None else views)
+    masks = np.zeros((len(views), height, width), bool)
+    # Rows at a time: a photograph's rays in float64 would take ~150 bytes per pixel at once.
+    rows = max(1, ROWS_PIXELS // width)
+    for n, v in enumerate(views):
+        for top in range(0, height, rows):
+            ys, xs = np.mgrid[top:min(top + rows, height), :width]
+            o, d = pixel_rays(K, c2w, v, np.stack([xs.ravel(), ys.ravel()], axis=1))
+            ray = mi.Ray3f(mi.Point3f(*(mi.Float(o[:, i]) for i in range(3))),
+                           mi.Vector3f(*(mi.Float(d[:, i]) for i in range(3))))
+            masks[n, top:top + rows] = np.array(scene.ray_test(ray)).reshape(ys.shape)
+    return masks

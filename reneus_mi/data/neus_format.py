@@ -35,7 +35,8 @@ from reneus_mi.data.cameras import compose_projection, decompose_projection
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_savez, atomic_write_text
-from reneus_mi.data.images import IMAGE_EXTENSIONS, read_image, read_mask, write_image
+from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_image, read_mask, reduced_size,
+                                   resize, write_image)
 
 CAMERAS_FILE = 'cameras_sphere.npz'
 META_FILE = 'reneus.json'
@@ -88,8 +89,9 @@ def _load_npz(path: str) -> dict:
         raise ReneusError(f"{path}: unreadable camera file ({err})") from None
 
 
-def read(path: str, *, need_container: bool = True) -> Dataset:
-    """Read the dataset whose ``cameras_sphere.npz`` is ``path``."""
+def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per_pixel: int = 0) -> Dataset:
+    """Read the dataset whose ``cameras_sphere.npz`` is ``path`` (``max_size``,
+    ``extra_per_pixel``: as :func:`reneus_mi.data.blender.read`)."""
     root = os.path.dirname(os.path.abspath(path))
     cams = _load_npz(path)
     n = len([k for k in cams if re.fullmatch(r'world_mat_\d+', k)])
@@ -104,6 +106,7 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
     mask_dir = os.path.join(root, 'mask')
     mask_files = view_files(mask_dir, n, path) if os.path.isdir(mask_dir) else None
 
+    check_images_fit(files, max_size, path, extra_per_pixel)
     Ks, c2ws = zip(*(decompose_projection(cams[f'world_mat_{i}'], f"{path}: world_mat_{i}")
                      for i in range(n)))
     scale_mat = None
@@ -128,12 +131,22 @@ def read(path: str, *, need_container: bool = True) -> Dataset:
     extras = read_extras(meta, root, meta_path)
     if scale_mat is not None:
         extras['scale_mat'] = scale_mat
-    return assemble(images=[read_image(f)[0] for f in files],
-                    masks=([read_mask(f) for f in mask_files] if mask_files
-                           else [None] * n),
-                    K=np.stack(Ks), c2w=np.stack(c2ws), names=[os.path.basename(f) for f in files],
+    images, masks, scaled = [], [], []
+    for i, file in enumerate(files):
+        rgb = read_image(file)[0]
+        height, width = rgb.shape[:2]
+        size = reduced_size(width, height, max_size)
+        images.append(resize(rgb, size))
+        scaled.append(np.diag([size[0] / width, size[1] / height, 1.0]) @ Ks[i])
+        if mask_files:
+            mask = read_mask(mask_files[i])
+            if mask.shape == (height, width) and size != (width, height):
+                mask = resize(mask.astype(np.float32), size) >= 0.5  # half inside is inside
+            masks.append(mask)
+    return assemble(images=images, masks=masks if mask_files else [None] * n,
+                    K=np.stack(scaled), c2w=np.stack(c2ws), names=[os.path.basename(f) for f in files],
                     files=files, root=root, meta_file=meta_path, need_container=need_container,
-                    **extras)
+                    mask_sources=mask_files and [f'from {f}' for f in mask_files], **extras)
 
 
 def write(ds: Dataset, out_dir: str) -> None:

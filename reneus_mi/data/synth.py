@@ -23,6 +23,7 @@ Command line: ``python -m reneus_mi.synth insect -o DIR --views 60 --res 800`` (
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
@@ -38,7 +39,7 @@ from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.data.masks import container_masks
 from reneus_mi.geometry.container import container_shape, shading_mesh
 from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_path, atomic_write_text
+from reneus_mi.io import atomic_folder, atomic_mitsuba_write, atomic_path, atomic_write_text
 from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 
@@ -157,8 +158,7 @@ def write_object(mesh: trimesh.Trimesh, path: str) -> None:
     params.update()
     shape.recompute_vertex_normals()
     shape.add_attribute('vertex_color', 3, mi.Float(albedo.astype(np.float32).ravel()))
-    with atomic_path(path) as tmp:
-        shape.write_ply(tmp)
+    atomic_mitsuba_write(path, shape.write_ply)
 
 
 def write_container(container: trimesh.Trimesh, path: str, normals: bool) -> None:
@@ -224,8 +224,33 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
         raise ReneusError("object mesh: expected per-vertex colours (mesh.visual.vertex_colors)")
     mesh, box = normalize(mesh, margin=margin, container=container)
 
-    os.makedirs(out_dir, exist_ok=True)
-    gt_path, box_path = os.path.join(out_dir, 'gt.ply'), os.path.join(out_dir, 'box.ply')
+    # Made in a temporary folder that becomes out_dir once whole: an interrupted or failed
+    # run leaves nothing behind, and the same command starts it again.
+    with atomic_folder(out_dir) as work:
+        rendered = _render(work, mesh, box, K, c2w, res=res, spp=spp, seed=seed, max_depth=max_depth,
+                           subsets=subsets, container=container, ior=ior, ambient=ambient)
+        images, masks, gt_path, box_path, noise = rendered
+        paths = _write_subsets(images, masks, K, c2w, gt_path, box_path, work, out_dir, ior,
+                               ambient) if write else {}
+        meta = {'object': 'trimesh' if isinstance(obj, trimesh.Trimesh) else os.fspath(obj),
+                'views': views, 'res': res, 'spp': spp, 'max_depth': max_depth, 'seed': seed,
+                'margin': margin, 'container': container, 'ior': ior, 'environment': ambient,
+                'gamma': GAMMA, 'camera_distance': CAMERA_DISTANCE, 'noise_std_display': noise,
+                'subsets': list(subsets), 'seconds': time.perf_counter() - start,
+                'paths': {sub: {fmt: os.path.relpath(folder, out_dir) for fmt, folder in p.items()}
+                          for sub, p in paths.items()}}
+        atomic_write_text(os.path.join(work, 'synth.json'), json.dumps(meta, indent=2))
+    return {'images': images, 'masks': masks, 'K': K, 'c2w': c2w,
+            'gt_mesh': os.path.join(out_dir, 'gt.ply'), 'container': os.path.join(out_dir, 'box.ply'),
+            'paths': paths, 'spp': spp, 'max_depth': max_depth, 'noise': noise,
+            'seconds': meta['seconds']}
+
+
+def _render(folder, mesh, box, K, c2w, *, res, spp, seed, max_depth, subsets, container, ior, ambient):
+    """Write the object and its container into ``folder`` and render every subset: the display
+    images by subset, the box masks, the two mesh files and the noise of one image."""
+    views = len(K)
+    gt_path, box_path = os.path.join(folder, 'gt.ply'), os.path.join(folder, 'box.ply')
     write_object(mesh, gt_path)
     write_container(box, box_path, normals=container != 'box')
 
@@ -245,22 +270,7 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
         if noise is None:
             again = encode(render_view(scene, K[0], c2w[0], res, spp, first + views * stride))
             noise = _noise(images[subset][0], again, masks[0])
-
-    paths = {}
-    if write:
-        paths = _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path, ior, ambient)
-    result = {'images': images, 'masks': masks, 'K': K, 'c2w': c2w, 'gt_mesh': gt_path,
-              'container': box_path, 'paths': paths, 'spp': spp, 'max_depth': max_depth,
-              'noise': noise, 'seconds': time.perf_counter() - start}
-    meta = {'object': 'trimesh' if isinstance(obj, trimesh.Trimesh) else os.fspath(obj),
-            'views': views, 'res': res, 'spp': spp, 'max_depth': max_depth, 'seed': seed,
-            'margin': margin, 'container': container, 'ior': ior, 'environment': ambient, 'gamma': GAMMA,
-            'camera_distance': CAMERA_DISTANCE, 'noise_std_display': noise,
-            'subsets': list(subsets), 'seconds': result['seconds'],
-            'paths': {sub: {fmt: os.path.relpath(folder, out_dir) for fmt, folder in p.items()}
-                      for sub, p in paths.items()}}
-    atomic_write_text(os.path.join(out_dir, 'synth.json'), json.dumps(meta, indent=2))
-    return result
+    return images, masks, gt_path, box_path, noise
 
 
 def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=None,
@@ -272,7 +282,6 @@ def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=
 
     The data stays as it was made: ``folder`` may not be the dataset's own folder, and the
     mesh may not replace one of its inputs."""
-    import dataclasses
     target = guards.check_output_file(os.path.join(folder, 'container_miscalibrated.ply'),
                                       inputs=[p for p in (ds.root, ds.container) if p],
                                       overwrite=True, what='miscalibrated container')
@@ -293,8 +302,7 @@ def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=
                                               .astype(np.float32).ravel())
         params.update()
         out.container = target
-        with atomic_path(target) as tmp:
-            shape.write_ply(tmp)
+        atomic_mitsuba_write(target, shape.write_ply)
     return out
 
 
@@ -306,26 +314,27 @@ def dataset_bytes(views: int, res: int, subsets: int) -> int:
     return pixels * (subsets * (3 * 4 * 3) + 1) + res * res * (3 * 8 + 3 * 4)
 
 
-def _write_subsets(images, masks, K, c2w, out_dir, gt_path, box_path, ior, ambient) -> dict:
-    """Write every subset in both formats, plus its scene XML; return the folders."""
+def _write_subsets(images, masks, K, c2w, gt_path, box_path, folder, out_dir, ior, ambient) -> dict:
+    """Write every subset in both formats, plus its scene XML, into ``folder`` (which becomes
+    ``out_dir``); return the subsets' folders as they will be."""
     paths = {}
     for subset, imgs in images.items():
         # The nobox subset keeps the box masks but has no interface to model.
         with_box = subset == 'box'
         ds = Dataset(images=imgs, masks=masks, K=K, c2w=c2w,
                      names=[f'r_{i:03d}' for i in range(len(imgs))],
-                     root=os.path.join(out_dir, subset),
+                     root=os.path.join(folder, subset),
                      container=box_path if with_box else None, ior=ior if with_box else None,
                      gt_mesh=gt_path, scale_mat=np.eye(4))
         paths[subset] = {'blender': os.path.join(out_dir, subset),
                          'neus': os.path.join(out_dir, f'{subset}_neus')}
-        for fmt, folder in paths[subset].items():
-            write_dataset(ds, folder, fmt)
-        # Read back, the dataset names the meshes copied into its folder:
-        # the scene then refers to nothing outside it.
-        folder = paths[subset]['blender']
-        write_scene(load_dataset(folder, need_container=with_box),
-                    os.path.join(folder, 'scene.xml'), ambient=ambient)
+        for fmt, final in paths[subset].items():
+            write_dataset(ds, os.path.join(folder, os.path.basename(final)), fmt)
+        # Read back, the dataset names the meshes copied into its folder: the scene then
+        # refers to nothing outside it, and names the dataset where it will be.
+        written = load_dataset(os.path.join(folder, subset), need_container=with_box)
+        write_scene(dataclasses.replace(written, root=paths[subset]['blender']),
+                    os.path.join(folder, subset, 'scene.xml'), ambient=ambient)
     return paths
 
 

@@ -30,7 +30,7 @@ import mitsuba as mi
 import numpy as np
 
 from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_savez
+from reneus_mi.io import atomic_savez, check_npz_file
 from reneus_mi.param_groups import ParamGroup
 
 # Vertices of a regular tetrahedron, |e_k|^2 = 3 and sum_k e_k e_k^T = 4 I.
@@ -132,6 +132,7 @@ def load_field(path: str | os.PathLike) -> Field:
     """Rebuild a field written by :meth:`Field.save`."""
     from reneus_mi.fields import FIELD_KINDS
     path = os.fspath(path)
+    check_npz_file(path, 'field', keys=('header',))
     try:
         data = np.load(path, allow_pickle=False)
         header = json.loads(str(data['header']))

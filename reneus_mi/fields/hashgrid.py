@@ -38,7 +38,7 @@ import numpy as np
 
 from reneus_mi.fields.activations import Softplus
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
-from reneus_mi.fields.neus import NeuralField, NeuralFieldConfig, build_mlp, fan_in_uniform_init
+from reneus_mi.fields.neus import NeuralField, NeuralFieldConfig, build_mlp, fan_in_uniform_init, mlp_size
 from reneus_mi.param_groups import ParamGroup
 
 # Scale of the SDF head relative to its fan-in initialisation: the residual on
@@ -105,6 +105,16 @@ class HashGridFieldConfig(NeuralFieldConfig):
                               f'at least base_resolution={self.base_resolution}')
         check_choice(self, 'gradient', ('analytic', 'numerical'))
         check_choice(self, 'activation', ('relu', 'softplus'))
+
+    size_settings: ClassVar[tuple[str, ...]] = (('n_levels', 'features_per_level', 'log2_hashmap_size',
+                                                 'hidden', 'layers') + NeuralFieldConfig.size_settings)
+
+    def parameters(self) -> int:
+        """The networks and, at most, a table of 2^log2_hashmap_size entries per level."""
+        table = self.n_levels * self.features_per_level * 2 ** self.log2_hashmap_size
+        return (super().parameters() + table
+                + mlp_size(3 + self.n_levels * self.features_per_level, self.hidden, self.layers,
+                           1 + self.n_features))
 
     @property
     def per_level_scale(self) -> float:

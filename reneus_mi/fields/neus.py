@@ -24,6 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from reneus_mi.fields.activations import Sine, SkipMLP, Softplus
+from reneus_mi import limits
 from reneus_mi.errors import ReneusError, check_choice, check_numbers
 from reneus_mi.fields.base import Field, FieldConfig
 from reneus_mi.variant import is_cuda
@@ -64,6 +65,19 @@ class NeuralFieldConfig(FieldConfig):
                               f'the field bound {Field.bound}')
         check_choice(self, 'dtype', ('auto', 'float32', 'float16'))
 
+    #: The settings that make the field large, named when it is too large.
+    size_settings: ClassVar[tuple[str, ...]] = ('n_features', 'color_hidden', 'color_layers')
+
+    def parameters(self) -> int:
+        """How many numbers the field's networks and tables hold: its size before it is built."""
+        n_color = 3 + 3 * (1 + 2 * self.multires_view) + 3 + self.n_features
+        return mlp_size(n_color, self.color_hidden, self.color_layers, 3)
+
+
+def mlp_size(n_in: int, width: int, layers: int, n_out: int) -> int:
+    """Weights and biases of an MLP of ``layers`` hidden layers of ``width``."""
+    return n_in * width + width * width * (layers - 1) + width * n_out + width * layers + n_out
+
 
 @dataclass
 class NeuSFieldConfig(NeuralFieldConfig):
@@ -92,6 +106,14 @@ class NeuSFieldConfig(NeuralFieldConfig):
         check_numbers(self, positive=('hidden', 'layers', 'beta', 'omega_0', 'fd_step'),
                       at_least_zero=('multires',))
         check_choice(self, 'activation', ('softplus', 'sine'))
+
+    size_settings: ClassVar[tuple[str, ...]] = ('hidden', 'layers') + NeuralFieldConfig.size_settings
+
+    def parameters(self) -> int:
+        n_pos = 3 * (1 + 2 * self.multires)
+        # The encoded input is injected again halfway (the skip layer).
+        return (super().parameters() + mlp_size(n_pos, self.hidden, self.layers, 1 + self.n_features)
+                + n_pos * self.hidden)
 
 
 def positional_encoding(values: list, octaves: int) -> list:
@@ -211,6 +233,21 @@ def build_mlp(n_in: int, width: int, depth: int, heads: tuple[int, ...], activat
     return body.alloc(tensor_t, n_in)
 
 
+#: Bytes per parameter of a field being fitted: its value, its gradient, Adam's two moments,
+#: and the packed copy the networks evaluate with and its gradient (float32 each).
+BYTES_PER_PARAMETER = 24
+
+
+def check_size(cfg: NeuralFieldConfig) -> None:
+    """Refuse a field whose parameters exceed 32-bit indices or the machine's memory, before
+    anything is allocated, naming the settings that size it."""
+    n = cfg.parameters()
+    settings = ', '.join(f'{name}={getattr(cfg, name)}' for name in cfg.size_settings)
+    what = f'a {cfg.kind} field of {n:,} parameters ({settings}: model.field.<name>)'
+    limits.check_index_range(n, what)
+    limits.check_memory(n * BYTES_PER_PARAMETER, what)
+
+
 class NeuralField(Field):
     """What the neural fields share: their configuration, the weights' precision, NeuS's
     radiance network f(x, v, n, feature) and the sharpness s = exp(10 variance).
@@ -230,6 +267,7 @@ class NeuralField(Field):
             raise ReneusError(f'{type(self).__name__}: unknown option(s) {sorted(set(kwargs) - known)}; '
                               f'expected some of {sorted(known)}') from None
         self.cfg = cfg
+        check_size(cfg)
         self.n_features = cfg.n_features
         self._net_t, self._tensor_t = storage_types(cfg.dtype)
         self._rng = np.random.default_rng(cfg.seed)

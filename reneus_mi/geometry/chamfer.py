@@ -24,11 +24,15 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from reneus_mi import limits
 from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.container import inside
 
 #: The paper's minimum number of sample points.
 MIN_POINTS = 10000
+#: Bytes per sample point of a measurement: both meshes' points (float64 x 3), their
+#: nearest-neighbour trees, distances and indices (peak measured: 202 at 2e6 points).
+BYTES_PER_POINT = 224
 
 
 def _sample(mesh: trimesh.Trimesh, n: int, seed: int, name: str) -> np.ndarray:
@@ -55,6 +59,7 @@ def chamfer(pred: trimesh.Trimesh, gt: trimesh.Trimesh, *, n_points: int | None 
         n_points = max(MIN_POINTS, int(0.2 * len(gt.vertices)))
     if n_points < 1:
         raise ReneusError(f'n_points={n_points}: expected a positive number')
+    limits.check_memory(n_points * BYTES_PER_POINT, f'{n_points} surface points per mesh (--points)')
     if not threshold > 0.0:
         raise ReneusError(f'threshold={threshold}: expected a positive distance')
     pred_points = _sample(pred, n_points, seed, 'predicted')

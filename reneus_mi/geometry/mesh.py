@@ -38,6 +38,11 @@ def load_mesh(path: str | os.PathLike, what: str = 'mesh') -> trimesh.Trimesh:
         raise ReneusError(f'{path}: cannot read the {what} ({type(e).__name__}: {e})') from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ReneusError(f'{path}: the {what} file holds no triangles')
+    bad = ~np.all(np.isfinite(mesh.vertices), axis=1)
+    if bad.any():
+        v = int(np.argmax(bad))
+        raise ReneusError(f'{path}: the {what} has {int(bad.sum())} vertex(es) with non-finite coordinates '
+                          f'(first: vertex {v} at {mesh.vertices[v].tolist()}); expected finite numbers')
     return mesh
 
 

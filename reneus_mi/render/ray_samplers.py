@@ -277,6 +277,8 @@ class NeuSSampler:
     """
 
     def __init__(self, config: SamplerConfig):
+        if config.occupancy_resolution:
+            OccupancyGrid.check_size(config.occupancy_resolution)
         self.config = config
         self.grid: OccupancyGrid | None = None
         self._grid_field = None

@@ -16,6 +16,12 @@ from reneus_mi.data import Dataset
 from reneus_mi.errors import ReneusError
 from reneus_mi.render.seeds import PIXELS, opaque_seed, step_seed
 
+#: Bytes per photograph pixel that the sampler holds beyond the dataset: the colours on the
+#: device (12) and the masked pixels' indices (4); the int64 indices it builds them from fit in
+#: what loading the dataset freed (``python bench/memory.py``).
+BYTES_PER_PIXEL = 16
+
+
 class PixelSampler:
     """Masked pixels of all views, their colours and their camera rays, on the device."""
 
@@ -31,7 +37,7 @@ class PixelSampler:
         self.seed, self.height, self.width = seed, h, w
         self.pixels = mi.UInt32(pixels.astype(np.uint32))
         self.n_pixels = len(pixels)
-        self.colors = mi.Float(dataset.images.reshape(-1).astype(np.float32))
+        self.colors = mi.Float(dataset.images.reshape(-1).astype(np.float32, copy=False))
         # Per view: rows of K⁻¹ and of the camera-to-world rotation, and the camera position.
         k_inv = np.linalg.inv(dataset.K)
         self.k_inv = mi.Float(k_inv[:, :2, :].reshape(-1).astype(np.float32))

@@ -3,6 +3,8 @@
 A reconstruction lives in one folder::
 
     config.json             the whole configuration and where the scene and data came from
+    scene_copy/             the scene and the files it names, as the run started: it resumes
+                            from them wherever the scene or the data moved since
     log.jsonl               one line every log_every steps: losses by name, PSNR, learning
                             rate, s, rays/s, and the refined IOR, pose and light
     checkpoint.npz          the latest checkpoint (atomic; --resume continues from it)
@@ -14,9 +16,13 @@ A reconstruction lives in one folder::
     .lock                   the process that drives the run (a kernel lock: :class:`RunLock`)
 
 :meth:`RunFolder.state` reads from disk, in any process, what the folder holds:
-``new`` (nothing to continue), ``running`` (a live process holds its lock),
+``new`` (nothing to continue: empty, or an attempt killed before its first
+checkpoint, which a new run replaces), ``running`` (a live process holds its lock),
 ``resumable`` (a checkpoint and no result: a killed run), ``finished`` or
-``failed`` (a result, with the reason). That is what a batch of runs needs to
+``failed`` (a result, with the reason; a run that failed before its first
+checkpoint leaves nothing to continue, and a new run replaces it). Every command
+reads it the same way (:meth:`RunFolder.check_start`) and names it in its
+messages (:meth:`RunState.advice`); that is also what a batch of runs needs to
 skip, continue or report each one.
 """
 from __future__ import annotations
@@ -24,6 +30,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import shutil
 import socket
 import time
 import warnings
@@ -39,12 +46,40 @@ STATES = ('new', 'running', 'resumable', 'finished', 'failed')
 
 @dataclass(frozen=True)
 class RunState:
-    """What a run folder holds: one of :data:`STATES`, and why (a failure, the lock's owner)."""
+    """What a run folder holds: one of :data:`STATES`, why (a failure, the lock's owner), and
+    its checkpoint (whether there is one, and its step when it can be read)."""
     name: str
     reason: str = ''
+    checkpoint: bool = False
+    step: int | None = None
 
     def __str__(self) -> str:
-        return f'{self.name} ({self.reason})' if self.reason else self.name
+        details = [self.reason] if self.reason else []
+        if self.checkpoint:
+            details.append('no readable checkpoint' if self.step is None else f'checkpoint of step {self.step}')
+        return f"{self.name} ({'; '.join(details)})" if details else self.name
+
+    @property
+    def takes_new_run(self) -> bool:
+        """Whether a new run may start in the folder: it holds nothing to continue."""
+        return self.name == 'new' or (self.name == 'failed' and not self.checkpoint)
+
+    @property
+    def takes_resume(self) -> bool:
+        """Whether ``--resume`` continues something: a checkpoint no process is driving."""
+        return self.name != 'running' and self.checkpoint
+
+    def advice(self) -> str:
+        """What the folder takes next, in the options' words."""
+        if self.name == 'running':
+            return f'wait for {self.reason} to end'
+        if self.takes_new_run:
+            return 'nothing to continue: a new run (without --resume) starts in it'
+        if self.name == 'finished':
+            return 'it is finished: --resume with more --iterations continues it'
+        if self.name == 'failed':
+            return 'continue it from its checkpoint with --resume, after changing what failed'
+        return 'continue it with --resume'
 
 
 class _File:
@@ -64,6 +99,7 @@ class RunFolder:
     path: str
 
     config = _File('config.json')
+    scene_copy = _File('scene_copy')
     log = _File('log.jsonl')
     checkpoint = _File('checkpoint.npz')
     images = _File('images')
@@ -96,14 +132,21 @@ class RunFolder:
         return RunLock(self.lock_file)
 
     def remove_stray_temporaries(self) -> list[str]:
-        """Delete the temporaries an atomic write left behind when it was killed."""
+        """Delete the temporaries (files, folders) an atomic write left behind when it was killed."""
         removed = []
         if os.path.isdir(self.path):
             for name in os.listdir(self.path):
                 if is_temporary(name):
-                    os.unlink(os.path.join(self.path, name))
+                    path = os.path.join(self.path, name)
+                    shutil.rmtree(path) if os.path.isdir(path) else os.unlink(path)
                     removed.append(name)
         return removed
+
+    def scene_to_load(self, recorded: str) -> str:
+        """The scene a continued run loads: its own copy (the run's scene as it started), else
+        the ``recorded`` file (a folder from before copies were kept)."""
+        copy = os.path.join(self.scene_copy, 'scene.xml')
+        return copy if os.path.isfile(copy) else recorded
 
     # -------------------------------------------------------------- state
     def state(self) -> RunState:
@@ -113,13 +156,40 @@ class RunFolder:
         owner = self.lock().owner()
         if owner is not None:
             return RunState('running', owner)
-        result = self.read_result()
+        return self.recorded_state()
+
+    def recorded_state(self) -> RunState:
+        """The state its files record, whoever holds the lock (a process saying what its own
+        run leaves)."""
+        checkpoint = os.path.isfile(self.checkpoint)
+        step = self.checkpoint_step() if checkpoint else None
+        result = self.read_result() if os.path.isdir(self.path) else None
         if result is not None:
             failure = result.get('failure')
-            return RunState('failed', str(failure)) if failure else RunState('finished')
-        if os.path.isfile(self.checkpoint):
-            return RunState('resumable')
-        return RunState('new')
+            return RunState('failed' if failure else 'finished', str(failure or ''), checkpoint, step)
+        return RunState('resumable' if checkpoint else 'new', '', checkpoint, step)
+
+    def checkpoint_step(self) -> int | None:
+        """The step of the folder's checkpoint, None when it has none that can be read."""
+        from reneus_mi.train.checkpoint import load_meta
+        try:
+            return int(load_meta(self.checkpoint)['iteration'])
+        except (ReneusError, KeyError, TypeError, ValueError):
+            return None
+
+    def check_start(self, resume: bool = False) -> RunState:
+        """Refuse, in one line naming the state and what it takes, a new run (or with
+        ``resume`` a continued one) that the folder's state does not take; return the state."""
+        state = self.state()
+        if state.name == 'running':
+            raise ReneusError(f'{self.path}: run is in use by {state.reason}; expected one process '
+                              'per run folder')
+        if resume and not state.takes_resume:
+            raise ReneusError(f'{self.path}: nothing to resume ({state}); {state.advice()}')
+        if not resume and not state.takes_new_run:
+            raise ReneusError(f'{self.path} already holds a run ({state}); {state.advice()}, or choose '
+                              'another output folder')
+        return state
 
     # ----------------------------------------------------- config, result
     def read_config(self) -> dict:

@@ -69,8 +69,9 @@ class RunSpec:
         from reneus_mi.data import load_dataset
         from reneus_mi.data.dataset import check_same_dataset
         if self.data_fingerprint is not None:
-            check_same_dataset(self.data_fingerprint, load_dataset(data, need_container=False),
-                               f'--data {data}: not the dataset this run was started on')
+            moved = load_dataset(data, need_container=False, max_size=self.config.train.max_image_size)
+            check_same_dataset(self.data_fingerprint, moved, f'--data {data}: not the dataset this run was '
+                               'started on')
         return dataclasses.replace(self, data=data)
 
 
@@ -95,24 +96,31 @@ def spec_of_scene(scene_path: str, data: str | None):
     return RunSpec(scene_path, data, config, integrator.preset)
 
 
-def make_trainer(spec: RunSpec, out: str):
-    """The scene, dataset and trainer of ``spec``; the integrator renders ``spec.config.model``."""
+def make_trainer(spec: RunSpec, out: str, scene_path: str | None = None):
+    """The scene, dataset and trainer of ``spec``; the integrator renders ``spec.config.model``.
+
+    ``scene_path`` loads the scene from elsewhere than ``spec.scene`` (a run's own copy)."""
     from reneus_mi.data import load_dataset
     from reneus_mi.data.dataset import dataset_fingerprint
     from reneus_mi.render.loading import check_field_reaches, load_scene, reneus_integrator
+    from reneus_mi.geometry.surface import check_resolution
+    from reneus_mi.train.pixel_sampler import BYTES_PER_PIXEL
     from reneus_mi.train.trainer import BUDGET_RANGE, Trainer, check_batch
-    scene = load_scene(spec.scene)
-    integrator = reneus_integrator(scene, spec.scene)
+    scene_path = scene_path or spec.scene
+    scene = load_scene(scene_path)
+    integrator = reneus_integrator(scene, scene_path)
     integrator.configure(with_refinement(spec.config).model)
     train = spec.config.train
     check_batch(train.batch_rays * (BUDGET_RANGE if train.sample_budget else 1), spec.config.model,
                 '--batch-rays' + (' (x8: the largest batch under --sample-budget)' if train.sample_budget else ''))
-    dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus')
+    check_resolution(train.mesh_resolution, '--mesh-resolution')
+    dataset = load_dataset(spec.data, need_container=spec.config.model.render.mode != 'neus',
+                           max_size=train.max_image_size, extra_per_pixel=BYTES_PER_PIXEL)
     if spec.data_fingerprint is None:
         spec.data_fingerprint = dataset_fingerprint(dataset)
     frame = integrator.frame_of(scene)
     if frame.bounds is not None:
-        check_field_reaches(frame.center, frame.scale, *frame.bounds, spec.scene)
+        check_field_reaches(frame.center, frame.scale, *frame.bounds, scene_path)
     if spec.mesh_bounds is not None:
         frame = dataclasses.replace(frame, bounds=spec.mesh_bounds)
     return Trainer(scene, dataset, spec.config.train, out, frame=frame)
@@ -135,16 +143,20 @@ def with_refinement(config: ReconstructionConfig) -> ReconstructionConfig:
 
 def run(spec: RunSpec, out: str, *, resume: bool = False, progress: bool = True) -> dict:
     """Train ``spec`` in folder ``out`` (continuing its checkpoint with ``resume``); return the result."""
+    from reneus_mi.render.loading import copy_scene
     from reneus_mi.train.trainer import TrainingError
     folder = RunFolder(out)
+    folder.check_start(resume)
     folder.check(inputs=[spec.scene, spec.data], resume=resume)
-    trainer = make_trainer(spec, out)
+    trainer = make_trainer(spec, out, folder.scene_to_load(spec.scene) if resume else spec.scene)
     os.makedirs(out, exist_ok=True)
     with folder.lock():
         folder.remove_stray_temporaries()
         if resume:
             check_npz_file(folder.checkpoint, 'checkpoint')
             trainer.resume()
+        else:
+            copy_scene(spec.scene, folder.scene_copy)
         folder.clear_result()
         folder.write_config(spec.to_dict())
         try:

@@ -14,11 +14,8 @@ its files, its log, its lock and its state).
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import signal
-import threading
 import time
 import warnings
 from dataclasses import asdict, dataclass
@@ -29,7 +26,7 @@ import numpy as np
 import trimesh
 from drjit.opt import GradScaler
 
-from reneus_mi import limits
+from reneus_mi import interrupt, limits
 from reneus_mi.train import checkpoint, losses
 from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
@@ -145,6 +142,8 @@ class Trainer:
                 from reneus_mi.train.silhouette import SilhouetteLoss
                 self.silhouette = SilhouetteLoss(dataset, self.surroundings.mesh())
         self.iteration = 0
+        #: The step of the latest checkpoint this run wrote or resumed from (None: none yet).
+        self.saved_iteration: int | None = None
         #: Seconds of training so far (over resumes): how much of a time budget is spent.
         self.elapsed = 0.0
         self.best_loss = float('inf')
@@ -198,6 +197,17 @@ class Trainer:
                         best_loss=self.best_loss, frame=self.frame, container=self.container,
                         scaler=self.scaler, surroundings=self.surroundings.params(), batch=self.batch,
                         elapsed=self.elapsed)
+        self.saved_iteration = self.iteration
+
+    def unsaved(self) -> bool:
+        """Whether steps were made since the latest checkpoint (or the start)."""
+        return self.iteration > (self.saved_iteration or 0)
+
+    def kept(self) -> str:
+        """What a failed step leaves to continue from, for its message."""
+        if self.saved_iteration is None:
+            return f'no checkpoint was written yet ({self.checkpoint_path})'
+        return f'the checkpoint of step {self.saved_iteration} ({self.checkpoint_path}) is kept'
 
     def resume(self) -> None:
         """Continue from the output folder's checkpoint, exactly where it was written."""
@@ -208,7 +218,7 @@ class Trainer:
         self.surroundings.load(checkpoint.load_surroundings(path), path)
         self._setup_optimizer()
         meta = checkpoint.restore(path, self.opt, self.names, self.scaler)
-        self.iteration = meta['iteration']
+        self.iteration = self.saved_iteration = meta['iteration']
         self.elapsed = meta.get('elapsed', 0.0)
         self.best_loss = meta['best_loss']
         self.batch = meta.get('batch', self.cfg.batch_rays)
@@ -257,7 +267,7 @@ class Trainer:
         for key, ok in finite.items():
             if not bool(ok[0]):
                 raise TrainingError(f'step {it}: the gradient of {key!r} is not finite; stopped '
-                                    f'before updating, the last checkpoint ({self.checkpoint_path}) is intact')
+                                    f'before updating; {self.kept()}')
         lr = cfg.learning_rate_at(s)
         # Every group follows the run's schedule at its own peak rate, from its start step.
         self.opt.set_learning_rate({self.keys[name]: 0.0 if s < group.start else
@@ -286,12 +296,11 @@ class Trainer:
 
     def _check(self, value: float, it: int) -> None:
         if not np.isfinite(value):
-            raise TrainingError(f'step {it}: the loss is {value}; stopped before updating, the '
-                                f'last checkpoint ({self.checkpoint_path}) is intact')
+            raise TrainingError(f'step {it}: the loss is {value}; stopped before updating; {self.kept()}')
         if it >= self.cfg.warm_up and value > self.cfg.divergence_factor * self.best_loss:
             raise TrainingError(f'step {it}: the loss {value:.4g} exceeds {self.cfg.divergence_factor}x '
-                                f'its lowest value {self.best_loss:.4g}: diverging; lower the learning '
-                                f'rate; the last checkpoint ({self.checkpoint_path}) is intact')
+                                f'its lowest value {self.best_loss:.4g}: diverging; {self.kept()}; '
+                                'lower the learning rate (--learning-rate)')
 
     # ---------------------------------------------------------- validation
     def render_view(self, view: int, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -367,7 +376,10 @@ class Trainer:
         bar = tqdm(total=cfg.iterations, initial=self.iteration, disable=not progress or timed,
                    unit='it', dynamic_ncols=True)
         try:
-            with open(self.folder.log, 'a') as log, _deferred_interrupt() as interrupted:
+            # A run from its first step starts its log anew: lines of an attempt killed before
+            # its first checkpoint belong to no step of this one.
+            with open(self.folder.log, 'a' if self.iteration else 'w') as log, \
+                    interrupt.deferred(unsaved=self.unsaved) as interrupted:
                 while self.elapsed < self.budget if timed else self.iteration < cfg.iterations:
                     if interrupted():
                         raise KeyboardInterrupt
@@ -388,8 +400,9 @@ class Trainer:
                         self.validate()
                     self.elapsed += time.perf_counter() - turn
         except KeyboardInterrupt:
-            self.save_checkpoint()
             bar.close()
+            if self.unsaved():
+                self.save_checkpoint()
             raise
         bar.close()
         self.save_checkpoint()
@@ -399,6 +412,8 @@ class Trainer:
                   'stopped_by_budget': timed}
         # The mesh's coordinates are the dataset's world: its units and frame where it states them.
         result.update({key: value for key, value in (('units', self.ds.units), ('frame', self.ds.frame)) if value})
+        if self.ds.gt_mesh:
+            result['ground_truth'] = self.ds.gt_mesh
         if self.refined:
             result['refined'] = self.refined_values()
         if cfg.refine.pose:
@@ -413,17 +428,3 @@ class Trainer:
             result['failure'] = (f'{e}; {mesh_path} is empty; the run can go on: --resume with more '
                                  '--iterations (or a lower --trans-weight)')
         return result
-
-
-@contextlib.contextmanager
-def _deferred_interrupt():
-    """Ctrl-C ends the loop between steps, never inside one (a checkpoint then holds a whole step)."""
-    flag = []
-    if threading.current_thread() is not threading.main_thread():
-        yield lambda: False
-        return
-    previous = signal.signal(signal.SIGINT, lambda *_: flag.append(True))
-    try:
-        yield lambda: bool(flag)
-    finally:
-        signal.signal(signal.SIGINT, previous)

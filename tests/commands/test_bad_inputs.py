@@ -14,21 +14,25 @@ Cases that would train are refused during validation, before any step.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import shutil
 import re
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 import trimesh
 
-from reneus_mi import evaluate, extract, optimize, scene, synth
-from reneus_mi.capture import colmap as capture_colmap, command as capture
+from reneus_mi import evaluate, extract, interrupt, optimize, scene, synth
+from reneus_mi.capture import colmap as capture_colmap, command as capture, pipeline as capture_pipeline
 from reneus_mi.render import __main__ as render
+from reneus_mi.train.run_folder import RunFolder
 from tiny import assert_same_state, new_trainer, train_state
 
 TRAIN = ['--iterations', '2', '--checkpoint-every', '1', '--batch-rays', '64', '--warm-up', '1',
@@ -385,9 +389,18 @@ def test_resume_with_other_data(world, run_copy):
 
 
 def test_resume_while_another_process_holds_the_run(world, run_copy):
-    (run_copy / '.lock').write_text(str(os.getppid()))
-    refused(optimize.main, ['-o', run_copy, '--resume', '--quiet', '--iterations', '3'],
-            'in use by process', watch=[run_copy])
+    """The lock is the kernel's: another process must hold it (a pid in .lock is not a lock)."""
+    hold = ('import sys, time\nfrom reneus_mi.train.run_folder import RunFolder\n'
+            'with RunFolder(sys.argv[1]).lock():\n    print("holding", flush=True)\n    time.sleep(600)')
+    holder = subprocess.Popen([sys.executable, '-c', hold, str(run_copy)], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, 'RENEUS_VARIANT': 'llvm_ad_rgb'})
+    try:
+        assert holder.stdout.readline().strip() == 'holding'
+        refused(optimize.main, ['-o', run_copy, '--resume', '--quiet', '--iterations', '3'],
+                f'in use by process {holder.pid}', watch=[run_copy])
+    finally:
+        holder.kill()
+        holder.wait()
 
 
 def test_resume_nothing_to_resume(tmp_path):
@@ -705,7 +718,7 @@ def test_capture_photograph_without_corners_is_left_out(shots, tmp_path):
     photos = photo_copies(shots, tmp_path / 'photos', 2, blank=1)
     files = sorted(str(p) for p in photos.iterdir())
     with pytest.warns(UserWarning) as caught:
-        detections, size = capture.detect_all(Board(12, 9, 20.0, 15.0), files)
+        detections, size = capture_pipeline.detect_all(Board(12, 9, 20.0, 15.0), files)
     messages = [str(w.message) for w in caught]
     assert messages == ['blank_0.jpg: left out: no board corners found (is the board in the picture, '
                         'sharp and not too oblique?)']
@@ -768,6 +781,250 @@ def test_processes_exit_1_with_one_line(world, tmp_path):
     one_error_line(process('capture', world['data'], '-o', tmp_path / 'out', *CAPTURE), 'no photographs')
     assert snapshot(world['data'], world['run']) == before
     assert os.listdir(tmp_path) == []
+
+
+# ================================================================== Ctrl-C
+#: A sitecustomize for the commands' processes: the first call of ``module:function`` (named
+#: in RENEUS_TEST_PAUSE with a marker file and a hold) returns, creates the marker, then holds
+#: the process there: a moment of the command that a test can find and interrupt. The hold is
+#: some seconds of sleep, or ``spin``: a Dr.Jit kernel that never ends, which Python's own
+#: handling of Ctrl-C would wait for (as for a long kernel compilation) for ever.
+PAUSE_HOOK = """\
+import importlib, os, time
+_module, _name, _marker, _hold = os.environ['RENEUS_TEST_PAUSE'].split('|')
+_module = importlib.import_module(_module)
+_original = getattr(_module, _name)
+
+
+def _paused(*args, **kwargs):
+    result = _original(*args, **kwargs)
+    if not os.path.exists(_marker):
+        open(_marker, 'w').close()
+        if _hold == 'spin':
+            import drjit as dr, mitsuba as mi
+            x = dr.while_loop(state=(mi.Float(0.0),), cond=lambda x: x >= 0.0, body=lambda x: (x + 1.0,))[0]
+            dr.eval(x)
+        else:
+            time.sleep(float(_hold))
+    return result
+
+
+setattr(_module, _name, _paused)
+"""
+#: A hold the command never returns from: the interrupt must end it from outside.
+SPIN = 'spin'
+
+
+def start(module, *args, tmp_path, pause=None, importtime=False) -> subprocess.Popen:
+    """``python -m reneus_mi.<module>`` as a process; ``pause=('module:function', hold)`` holds
+    it once inside that call (``tmp_path / 'paused'`` marks the moment)."""
+    env = {**os.environ, 'RENEUS_VARIANT': 'llvm_ad_rgb'}
+    if pause:
+        hook = tmp_path / 'hook'
+        hook.mkdir(exist_ok=True)
+        (hook / 'sitecustomize.py').write_text(PAUSE_HOOK)
+        env['PYTHONPATH'] = os.pathsep.join(filter(None, [str(hook), env.get('PYTHONPATH')]))
+        env['RENEUS_TEST_PAUSE'] = '|'.join([*pause[0].split(':'), str(tmp_path / 'paused'), str(pause[1])])
+    flags = ['-X', 'importtime'] if importtime else []
+    return subprocess.Popen([sys.executable, *flags, '-m', f'reneus_mi.{module}', *map(str, args)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(proc, ready, limit=300.0) -> None:
+    """Wait (bounded) until ``ready()``; the process must still be running then."""
+    deadline = time.monotonic() + limit
+    while not ready():
+        assert proc.poll() is None, f'ended before the moment came: {proc.communicate()}'
+        if time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail(f'the moment never came: {proc.communicate()[1][-3000:]}')
+        time.sleep(0.005)
+
+
+def ctrl_c(proc, times=1) -> str:
+    """Send SIGINT; the process must end with status 130 and one line; return the line."""
+    for n in range(times):
+        proc.send_signal(signal.SIGINT)
+        if n + 1 < times:   # apart: the kernel merges a signal sent while one is pending
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(0.5)
+    try:
+        _, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:   # a hold that never ends outlives a lost interrupt
+        proc.kill()
+        pytest.fail(f'the interrupt did not end the process: {proc.communicate()[1][-3000:]}')
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith('import time:')]
+    assert proc.returncode == interrupt.STATUS and len(lines) == 1, (proc.returncode, err[-3000:])
+    assert lines[0].startswith('interrupted: ') and 'Traceback' not in err, err[-3000:]
+    return lines[0]
+
+
+def temporaries(*folders) -> list[str]:
+    return [os.path.join(d, f) for folder in folders for d, dirs, files in os.walk(folder)
+            for f in files + dirs if f.startswith('.tmp-')]
+
+
+def said_state(line: str, out) -> None:
+    """The line names the state the folder is in now, and what it takes."""
+    state = RunFolder(out).state()
+    assert line == f'interrupted: {out} is {state}: {state.advice()}', (line, str(state))
+
+
+CTRL_C_TRAIN = [a if a != '2' else '3' for a in TRAIN]
+
+
+@pytest.mark.parametrize('module, args', [
+    ('optimize', ['{scene}', '-o', '{out}', *TRAIN]),
+    ('render', ['{scene}', '-o', '{out}.png']),
+    ('extract', ['{checkpoint}', '-o', '{out}.ply']),
+    ('evaluate', ['{gt}', '{gt}']),
+    ('scene', ['{data}', '-o', '{out}.xml']),
+    ('synth', ['sphere', '-o', '{out}', '--views', 2, '--res', 8, '--spp', 1]),
+    ('capture', ['{data}', '-o', '{out}']),
+], ids=lambda v: v if isinstance(v, str) else None)
+def test_ctrl_c_while_starting(world, tmp_path, module, args):
+    """Ctrl-C during the imports (Dr.Jit, Mitsuba still loading): one line, nothing written."""
+    values = {**world, 'out': tmp_path / 'out'}
+    proc = start(module, *[str(a).format(**values) for a in args], tmp_path=tmp_path, importtime=True)
+    for line in proc.stderr:      # the imports report as they end; Dr.Jit's come after the handler's
+        if re.search(r'\|\s+drjit', line):
+            break
+    line = ctrl_c(proc)
+    assert line == f'interrupted: {interrupt.NOTHING_HALF_WRITTEN}'
+    assert os.listdir(tmp_path) == []
+
+
+def test_ctrl_c_in_the_first_step(world, tmp_path):
+    """Inside the first step (where a cold cache compiles the kernels): at once, not when the
+    step ends; nothing to continue, and the same command starts the run anew."""
+    out = tmp_path / 'run'
+    proc = start('optimize', world['scene'], '-o', out, *CTRL_C_TRAIN, tmp_path=tmp_path,
+                 pause=('reneus_mi.train.losses:total', SPIN))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    said_state(ctrl_c(proc), out)
+    assert RunFolder(out).state().takes_new_run and not temporaries(tmp_path)
+    assert optimize.main([world['scene'], '-o', str(out), *CTRL_C_TRAIN]) == 0
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
+
+
+@pytest.mark.parametrize('times', [1, 2], ids=['once', 'twice'])
+def test_ctrl_c_while_a_checkpoint_is_written(world, tmp_path, times):
+    """Once: the checkpoint being written is finished first (it holds a step); twice: at once,
+    its temporary removed. Either way the folder says what it takes, and that works."""
+    out = tmp_path / 'run'
+    proc = start('optimize', world['scene'], '-o', out, *CTRL_C_TRAIN, tmp_path=tmp_path,
+                 pause=('numpy:savez', 2.0 if times == 1 else SPIN))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    assert temporaries(out)               # the checkpoint is being written
+    said_state(ctrl_c(proc, times), out)
+    assert not temporaries(tmp_path)
+    state = RunFolder(out).state()
+    if times == 1:
+        assert str(state) == 'resumable (checkpoint of step 1)'
+        assert optimize.main(['-o', str(out), '--resume', '--quiet']) == 0
+    else:
+        assert state.name == 'new' and not (out / 'checkpoint.npz').exists()
+        assert optimize.main([world['scene'], '-o', str(out), *CTRL_C_TRAIN]) == 0
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
+
+
+def test_ctrl_c_while_meshing(world, tmp_path):
+    """After the last step: at once; the checkpoint holds the run, --resume writes the mesh."""
+    out = tmp_path / 'run'
+    proc = start('optimize', world['scene'], '-o', out, *CTRL_C_TRAIN, tmp_path=tmp_path,
+                 pause=('skimage.measure:marching_cubes', SPIN))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    said_state(ctrl_c(proc), out)
+    assert str(RunFolder(out).state()) == 'resumable (checkpoint of step 3)'
+    assert not (out / 'mesh.ply').exists() and not temporaries(tmp_path)
+    assert optimize.main(['-o', str(out), '--resume', '--quiet']) == 0
+    assert (out / 'mesh.ply').exists() and RunFolder(out).state().name == 'finished'
+
+
+def test_ctrl_c_during_synth_leaves_nothing(tmp_path):
+    """Harmful before: the partial folder made the same command refuse."""
+    out = tmp_path / 'data'
+    args = ['sphere', '-o', out, '--views', 2, '--res', 8, '--spp', 1]
+    proc = start('synth', *args, tmp_path=tmp_path, pause=('reneus_mi.data.synth:render_view', SPIN))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    assert ctrl_c(proc) == f'interrupted: {out} was not written (nothing of it is left); the same command starts again'
+    assert sorted(os.listdir(tmp_path)) == ['hook', 'paused']
+    assert synth.main([str(a) for a in args]) == 0
+    assert (out / 'box' / 'transforms.json').exists()
+
+
+def test_ctrl_c_while_capture_writes(shots, tmp_path):
+    """Harmful before: an interrupt after transforms.json (while the overlays were written) was
+    said to leave no dataset, and the same command then refused the folder."""
+    out = tmp_path / 'out'
+    args = [photo_copies(shots, tmp_path / 'photos', 6), '-o', out, *CAPTURE, '--max-size', 320, '--quiet']
+    proc = start('capture', *args, tmp_path=tmp_path, pause=('reneus_mi.capture.dataset:write_overlays', SPIN))
+    wait_for(proc, (tmp_path / 'paused').exists)
+    assert ctrl_c(proc) == (f'interrupted: {out} holds no dataset yet (no transforms.json): '
+                            'the same command replaces what it holds')
+    assert len(os.listdir(out / 'overlays')) == 6 and not temporaries(tmp_path)
+    assert capture.main([str(a) for a in args]) == 0
+    assert (out / 'transforms.json').exists()
+
+
+def test_interrupt_wrapped_by_mitsuba_is_one_line(capsys):
+    """In-process (no handler of its own), a KeyboardInterrupt that Mitsuba wrapped in a
+    RuntimeError ends as an interrupt, not as 'error: KeyboardInterrupt()'."""
+    from reneus_mi.errors import exit_on_error
+    with pytest.raises(SystemExit) as exit_info, exit_on_error(RuntimeError):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise RuntimeError('error while performing a custom differentiable operation') from e
+    assert exit_info.value.code == interrupt.STATUS
+    assert capsys.readouterr().err.strip().startswith('interrupted: ')
+
+
+# ============================================================ run states
+def test_rerun_of_a_run_killed_before_its_first_checkpoint_keeps_no_dead_lines(world, tmp_path):
+    """Harmful before: the new run appended its log to the dead attempt's."""
+    out = tmp_path / 'run'
+    proc = start('optimize', world['scene'], '-o', out, *TRAIN, '--iterations', 100000,
+                 '--checkpoint-every', 0, tmp_path=tmp_path)
+    wait_for(proc, lambda: len(RunFolder(out).read_log()) >= 2)
+    proc.kill()
+    proc.communicate()
+    assert RunFolder(out).state().name == 'new'
+    assert optimize.main([world['scene'], '-o', str(out), *CTRL_C_TRAIN]) == 0
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
+
+
+#: A loss above 0.5x its lowest value counts as diverging: every step after warm-up does.
+DIVERGE = ['--divergence-factor', '0.5']
+
+
+def test_diverged_before_its_first_checkpoint(world, tmp_path):
+    """Harmful before: the message named a checkpoint never written, and the folder then
+    refused both a new run and --resume."""
+    out = tmp_path / 'run'
+    message = refused(optimize.main, [world['scene'], '-o', out, *TRAIN, '--checkpoint-every', 0, *DIVERGE],
+                      'step 1: the loss', 'diverging; no checkpoint was written yet', '--learning-rate',
+                      f'{out}: nothing to continue: a new run (without --resume) starts in it')
+    state = RunFolder(out).state()
+    assert state.name == 'failed' and state.reason in message and not state.checkpoint
+    refused(optimize.main, ['-o', out, '--resume', '--quiet'], f'{out}: nothing to resume (failed (step 1',
+            'a new run (without --resume) starts in it', watch=[out])
+    assert optimize.main([world['scene'], '-o', str(out), *TRAIN]) == 0
+    assert RunFolder(out).state().name == 'finished'
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2]
+
+
+def test_diverged_after_a_checkpoint(world, tmp_path):
+    out = tmp_path / 'run'
+    refused(optimize.main, [world['scene'], '-o', out, *CTRL_C_TRAIN, '--warm-up', 2, *DIVERGE],
+            'step 2: the loss', f'diverging; the checkpoint of step 2 ({out}/checkpoint.npz) is kept',
+            f'{out}: continue it from its checkpoint with --resume, after changing what failed')
+    assert str(RunFolder(out).state()).startswith('failed (step 2: the loss')
+    refused(optimize.main, [world['scene'], '-o', out, *TRAIN], f'{out} already holds a run (failed (step 2',
+            'checkpoint of step 2)', 'continue it from its checkpoint with --resume', watch=[out])
+    assert optimize.main(['-o', str(out), '--resume', '--quiet', '--divergence-factor', '50']) == 0
+    assert RunFolder(out).state().name == 'finished'
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
 
 
 # ============================================ what a resumed run must survive
@@ -881,6 +1138,199 @@ def test_resume_with_moved_data(world, run_copy, tmp_path):
     shutil.copytree(world['data'], moved)
     assert optimize.main(['-o', str(run_copy), '--resume', '--quiet', '--data', str(moved)]) == 0
     assert json.loads((run_copy / 'config.json').read_text())['data'] == str(moved)
+
+
+@pytest.mark.parametrize('moved', ['data', 'scene', 'both'])
+def test_resume_after_the_scene_or_its_data_moved(world, tmp_path, moved):
+    """A scene written by `scene` names the container inside the dataset folder; the run keeps
+    a copy of its scene and the files it names, so neither move needs config.json edited."""
+    data, xml = tmp_path / 'data', tmp_path / 'scenes' / 'specimen.xml'
+    shutil.copytree(world['data'], data)
+    (tmp_path / 'scenes').mkdir()
+    assert scene.main([str(data), '-o', str(xml), '--preset', 'tiny']) == 0
+    out = tmp_path / 'run'
+    assert optimize.main([str(xml), '-o', str(out), *TRAIN]) == 0
+    more = ['-o', str(out), '--resume', '--quiet', '--iterations', '3']
+    if moved in ('data', 'both'):
+        os.rename(data, tmp_path / 'moved')
+        more += ['--data', str(tmp_path / 'moved')]
+    if moved in ('scene', 'both'):
+        os.rename(tmp_path / 'scenes', tmp_path / 'elsewhere')
+    assert optimize.main(more) == 0
+    assert [e['iteration'] for e in RunFolder(out).read_log()] == [1, 2, 3]
+    assert RunFolder(out).state().name == 'finished'
+
+
+# ========================================== sizes checked before they are spent
+def png_header(path, width: int, height: int) -> None:
+    """A PNG that states ``width`` x ``height`` RGBA in its header and holds no pixels: a
+    photograph too large to make in a test, which a check must refuse before decoding it."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack('>I', len(data)) + kind + data + struct.pack('>I', zlib.crc32(kind + data))
+    path.write_bytes(b'\x89PNG\r\n\x1a\n' + chunk(b'IHDR', struct.pack('>IIBBBBB', width, height, 8, 6, 0, 0, 0))
+                     + chunk(b'IDAT', zlib.compress(b'')) + chunk(b'IEND', b''))
+
+
+def test_optimize_photographs_beyond_memory(world, data, tmp_path, small_machine):
+    """Harmful before: photographs were decoded unchecked (four of 6000x4000 peaked at 4-8 GB)."""
+    for name in os.listdir(data / 'images'):
+        png_header(data / 'images' / name, 6000, 4000)
+    refused(optimize.main, train(world, data, tmp_path), 'transforms.json: 12 photographs of 6000x4000',
+            'needs about', 'this machine has 8 GiB', 'lower it with --max-image-size N', watch=[tmp_path])
+    # The option it names lowers the figure below the machine's: the photographs are then read
+    # (and these, which hold no pixels, refused as such).
+    refused(optimize.main, train(world, data, tmp_path, '--max-image-size', 1000), 'r_000.png',
+            'unreadable image', watch=[tmp_path])
+
+
+def test_scene_photographs_beyond_memory(world, data, tmp_path, small_machine):
+    png_header(data / 'images' / 'r_003.png', 60000, 40000)
+    refused(scene.main, [data, '-o', tmp_path / 'scene.xml'], '12 photographs of 16x16',
+            'lower it with --max-image-size N', watch=[tmp_path])
+
+
+def test_optimize_max_image_size_trains_on_reduced_photographs(world, tmp_path):
+    out = tmp_path / 'run'
+    assert optimize.main([world['scene'], '-o', str(out), *TRAIN, '--max-image-size', '8']) == 0
+    fingerprint = json.loads((out / 'config.json').read_text())['data_fingerprint']
+    assert (fingerprint['width'], fingerprint['height']) == (8, 8)
+
+
+@pytest.mark.parametrize('args, parts', [
+    (['--mesh-resolution', 100000], ['--mesh-resolution 100000', '32-bit index limit']),
+    (['--set', 'model.sampler.occupancy_resolution=2000'],
+     ['model.sampler.occupancy_resolution=2000 (8,000,000,000 cells)', '32-bit index limit']),
+    (['--set', 'model.field.hidden=100000'], ['a neus field of', 'hidden=100000', 'model.field.<name>',
+                                               '32-bit index limit']),
+], ids=['mesh_resolution', 'occupancy_grid', 'field_width'])
+def test_optimize_sizes_beyond_indices_before_training(world, tmp_path, args, parts):
+    """Harmful before: a large --mesh-resolution died with a traceback after the whole training."""
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, *args], *parts, watch=[tmp_path])
+
+
+@pytest.mark.parametrize('args, parts', [
+    (['--mesh-resolution', 1600], ['--mesh-resolution 1600', 'needs about']),
+    (['--set', 'model.field.hidden=20000'], ['a neus field of', 'hidden=20000', 'needs about']),
+], ids=['mesh_resolution', 'field_width'])
+def test_optimize_sizes_beyond_memory_before_training(world, tmp_path, small_machine, args, parts):
+    refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, *args], *parts,
+            'this machine has 8 GiB', watch=[tmp_path])
+
+
+def test_render_field_beyond_memory(world, tmp_path, small_machine):
+    xml = tmp_path / 'scene.xml'
+    xml.write_text(open(world['scene']).read().replace(
+        '<string name="preset" value="tiny" />', '<string name="preset" value="tiny" /><integer name="field_hidden" '
+        'value="20000" />').replace('value="box/', f'value="{world["data"]}/'))
+    refused(render.main, [xml, '-o', tmp_path / 'r.png'], 'a neus field of', 'hidden=20000', 'needs about',
+            watch=[tmp_path])
+
+
+def test_evaluate_points_beyond_memory(world, tmp_path, small_machine):
+    refused(evaluate.main, [world['gt'], world['gt'], '--points', 10**8],
+            '100000000 surface points per mesh (--points)', 'needs about', watch=[tmp_path])
+
+
+# ======================================================= messages name the cause
+@pytest.fixture
+def full_disk(monkeypatch):
+    """Every atomic write lands on /dev/full: the kernel's own 'No space left on device'."""
+    if not os.path.exists('/dev/full'):
+        pytest.skip('no /dev/full on this system')
+    from reneus_mi import io
+
+    def new_temporary(directory, suffix):
+        path = os.path.join(directory, f'{io.TEMPORARY_PREFIX}full{suffix}')
+        os.symlink('/dev/full', path)
+        return path
+    monkeypatch.setattr(io, '_new_temporary', new_temporary)
+
+
+def test_extract_onto_a_full_disk_names_the_file(world, tmp_path, full_disk):
+    refused(extract.main, [world['checkpoint'], '-o', tmp_path / 'm.ply', '--resolution', 16],
+            f'{tmp_path}/m.ply: No space left on device', watch=[tmp_path])
+
+
+def test_render_onto_a_full_disk_names_the_file(world, tmp_path, full_disk):
+    """Harmful before: Mitsuba's own image writer reports no error on a full disk (a torn image)."""
+    refused(render.main, [world['scene'], '-o', tmp_path / 'r.png'], f'{tmp_path}/r.png: No space left on device',
+            watch=[tmp_path])
+
+
+def test_optimize_opaque_alpha_says_the_mask_is_the_alpha_channel(world, data, tmp_path):
+    from reneus_mi.data.images import read_image, write_image
+    for name in os.listdir(data / 'images'):
+        rgb, _ = read_image(str(data / 'images' / name))
+        write_image(str(data / 'images' / name), np.concatenate([rgb, np.ones_like(rgb[..., :1])], -1))
+    refused(optimize.main, train(world, data, tmp_path), 'r_000.png: view 0: the mask from its alpha channel '
+            'covers the whole image', 'opaque alpha channel', watch=[tmp_path])
+
+
+@pytest.mark.parametrize('field, parts', [
+    ('{tmp}/absent.npz', ["model.field='{tmp}/absent.npz': no such file"]),
+    ('{checkpoint}', ["is a saved field, and a setting takes a field kind", '--field {checkpoint}']),
+], ids=['missing', 'saved_field'])
+@pytest.mark.parametrize('command', ['optimize', 'scene'])
+def test_set_field_to_a_file(world, tmp_path, command, field, parts):
+    """Harmful before: 'unknown field kind' whether or not the file existed."""
+    values = {'tmp': tmp_path, 'checkpoint': world['checkpoint']}
+    setting = ['--set', f'model.field={field.format(**values)}']
+    argv = ([world['scene'], '-o', tmp_path / 'out', *TRAIN] if command == 'optimize'
+            else [world['data'], '-o', tmp_path / 'scene.xml'])
+    refused({'optimize': optimize.main, 'scene': scene.main}[command], [*argv, *setting],
+            *[p.format(**values) for p in parts], watch=[tmp_path])
+
+
+def test_scene_naming_a_missing_saved_field(world, tmp_path):
+    xml = tmp_path / 'scene.xml'
+    xml.write_text(open(world['scene']).read().replace(
+        '<string name="preset" value="tiny" />', f'<string name="preset" value="tiny" /><string name="field" '
+        f'value="{tmp_path}/gone.npz" />').replace('value="box/', f'value="{world["data"]}/'))
+    refused(render.main, [xml, '-o', tmp_path / 'r.png'], f'{tmp_path}/gone.npz: field file does not exist',
+            watch=[tmp_path])
+
+
+def test_evaluate_mesh_with_a_nan_vertex(world, tmp_path):
+    """Harmful before: reported as 'no surface to sample'."""
+    mesh = trimesh.load(world['gt'], force='mesh', process=False)
+    mesh.vertices[3] = [np.nan, 0.0, 0.0]
+    mesh.export(tmp_path / 'pred.ply')
+    refused(evaluate.main, [tmp_path / 'pred.ply', world['gt']], f'{tmp_path}/pred.ply: the predicted mesh has '
+            '1 vertex(es) with non-finite coordinates (first: vertex 3 at [nan, 0.0, 0.0])', watch=[tmp_path])
+
+
+# ============================================= image formats photographers have
+def test_optimize_on_a_neus_folder_of_tiffs(world, tmp_path):
+    """Harmful before: a NeuS folder of TIFFs was read as '0 images'. 16-bit and 8-bit TIFFs read
+    as the PNGs they were made from."""
+    import cv2
+    from reneus_mi.data import load_dataset
+    data = tmp_path / 'neus'
+    shutil.copytree(world['neus'], data)
+    for i, png in enumerate(sorted((data / 'image').iterdir())):
+        pixels = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(png.with_suffix('.tif')), pixels.astype(np.uint16) * 257 if i % 2 else pixels)
+        png.unlink()
+    for png in (data / 'mask').iterdir():
+        cv2.imwrite(str(png.with_suffix('.tif')), cv2.imread(str(png), cv2.IMREAD_UNCHANGED))
+        png.unlink()
+    np.testing.assert_allclose(load_dataset(str(data)).images, load_dataset(world['neus']).images, atol=1e-6)
+    assert np.array_equal(load_dataset(str(data)).masks, load_dataset(world['neus']).masks)
+    assert optimize.main([str(a) for a in train(world, data, tmp_path)]) == 0
+
+
+@pytest.mark.parametrize('orientation, turn', [(6, 'turn it 90 degrees clockwise'), (3, 'turn it by 180 degrees')])
+def test_optimize_exif_orientation_refused_by_name(world, data, tmp_path, orientation, turn):
+    from PIL import Image
+    path = data / 'images' / 'r_004.png'
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    Image.open(path).save(path, exif=exif.tobytes())
+    refused(optimize.main, train(world, data, tmp_path), f'r_004.png: EXIF orientation {orientation} asks to {turn}',
+            'expected photographs stored upright (orientation 1)', watch=[tmp_path])
 
 
 # ======================================================================== batch

@@ -393,8 +393,8 @@ def test_mask_disagreeing_with_the_projection(written, tmp_path):
     folder = mutable(written, tmp_path, 'neus')
     write_image(str(folder / 'mask' / '001.png'), np.zeros((H, W)))
     write_image(str(folder / 'mask' / '001.png'), np.pad(np.ones((3, 3)), ((0, H - 3), (0, W - 3))))
-    with pytest.raises(ValueError, match=r"001.png: view 1: the mask overlaps the container's "
-                                         r"projection by IoU 0.0"):
+    with pytest.raises(ValueError, match=r"001.png: view 1: the mask from \S+mask/001.png overlaps the "
+                                         r"container's projection by IoU 0.0"):
         load_dataset(str(folder))
 
 
@@ -438,3 +438,21 @@ def test_dataset_fingerprint():
     moved.c2w[1, 0, 3] = 0.5
     with pytest.raises(ReneusError, match='other camera positions'):
         check_same_dataset(saved, moved, 'config.json')
+
+
+@pytest.mark.parametrize('fmt', ['blender', 'neus'])
+def test_max_size_reduces_photographs_and_cameras_alike(written, fmt):
+    """A photograph reduced by area averaging keeps its rays: the reduced pixel (x, y) is the
+    original 2x2 block, whose centre is the original point (2x + 1, 2y + 1)."""
+    _, root = written
+    full, half = load_dataset(str(root / fmt)), load_dataset(str(root / fmt), max_size=W // 2)
+    assert half.images.shape == (3, H // 2, W // 2, 3)
+    blocks = full.images.reshape(3, H // 2, 2, W // 2, 2, 3).mean(axis=(2, 4))
+    assert np.abs(half.images - blocks).max() < 1e-6
+    assert np.array_equal(half.masks, full.masks.reshape(3, H // 2, 2, W // 2, 2).mean(axis=(2, 4)) >= 0.5)
+    assert np.allclose(half.K, np.diag([0.5, 0.5, 1.0]) @ full.K)
+    px = np.tile(np.stack(np.meshgrid(np.arange(W // 2), np.arange(H // 2)), -1).reshape(-1, 2), (3, 1))
+    view = np.repeat(np.arange(3), len(px) // 3)
+    (o0, d0), (o1, d1) = full.rays(view, 2 * px + 0.5), half.rays(view, px)
+    assert np.abs(o1 - o0).max() < 1e-9 and np.abs(d1 - d0).max() < 1e-9
+    assert dataset_fingerprint(half)['width'] == W // 2

@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 import reneus_mi
@@ -119,6 +120,10 @@ def test_run_lock_of_a_killed_process(tmp_path):
         assert _holder(tmp_path) == str(os.getpid())
 
 
+def _checkpoint(folder, step):
+    np.savez(folder.checkpoint, meta=np.array(json.dumps({'iteration': step})))
+
+
 def test_run_state_is_read_from_disk(tmp_path):
     folder = RunFolder(tmp_path / 'run')
     assert folder.state().name == 'new'
@@ -126,15 +131,47 @@ def test_run_state_is_read_from_disk(tmp_path):
     (tmp_path / 'run' / 'config.json').write_text('{}')
     assert folder.state().name == 'new'                  # killed before its first checkpoint
     (tmp_path / 'run' / 'checkpoint.npz').write_text('')
-    assert folder.state().name == 'resumable'
+    assert str(folder.state()) == 'resumable (no readable checkpoint)'
+    _checkpoint(folder, 40)
+    assert str(folder.state()) == 'resumable (checkpoint of step 40)'
     with folder.lock():
         assert str(folder.state()) == f'running (process {os.getpid()})'
+        assert folder.recorded_state().name == 'resumable'     # what the holder itself leaves
     folder.write_result({'iterations': 3})
     assert folder.state().name == 'finished' and folder.read_result() == {'iterations': 3}
     folder.write_result({'failure': 'step 2: the loss is nan'})
-    assert str(folder.state()) == 'failed (step 2: the loss is nan)'
+    assert str(folder.state()) == 'failed (step 2: the loss is nan; checkpoint of step 40)'
     folder.clear_result()
     assert folder.state().name == 'resumable'
+
+
+@pytest.mark.parametrize('files, state, new_run, resume', [
+    ((), 'new', True, False),
+    (('config.json', 'log.jsonl'), 'new', True, False),           # killed before its first checkpoint
+    (('checkpoint',), 'resumable', False, True),
+    (('checkpoint', 'result'), 'finished', False, True),
+    (('checkpoint', 'failure'), 'failed', False, True),
+    (('config.json', 'failure'), 'failed', True, False),          # failed before its first checkpoint
+], ids=['empty', 'dead_attempt', 'killed', 'finished', 'failed', 'failed_before_checkpoint'])
+def test_every_state_says_what_it_takes(tmp_path, files, state, new_run, resume):
+    """One reading of the state decides what a new run and --resume may do, and says it."""
+    folder = RunFolder(tmp_path)
+    for name in files:
+        if name == 'checkpoint':
+            _checkpoint(folder, 7)
+        elif name in ('result', 'failure'):
+            folder.write_result({'failure': 'step 3: diverging'} if name == 'failure' else {'iterations': 9})
+        else:
+            (tmp_path / name).write_text('{}')
+    found = folder.state()
+    assert (found.name, found.takes_new_run, found.takes_resume) == (state, new_run, resume)
+    refused = 'nothing to resume' if new_run else 'already holds a run'
+    with pytest.raises(ReneusError, match=refused) as err:
+        folder.check_start(resume=new_run)
+    assert found.advice() in str(err.value) and str(found) in str(err.value)
+    assert folder.check_start(resume=resume) == found
+    with folder.lock(), pytest.raises(ReneusError, match='in use by process'):
+        folder.check_start(resume=resume)
 
 
 def _log(path, steps, torn=False):
