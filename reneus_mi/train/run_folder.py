@@ -10,7 +10,9 @@ A reconstruction lives in one folder::
     checkpoint.npz          the latest checkpoint (atomic; --resume continues from it)
     images/                 validation renders (image | photograph) and normal maps
     meshes/                 mesh snapshots (64^3) at validation steps
-    mesh.ply                the final mesh, in the dataset's world coordinates
+    mesh.ply                the final mesh, in the dataset's world coordinates (a capture's:
+                            millimetres in the board's frame; result.json says which)
+    mesh.glb                the same for web viewers: vertex colours, metres, y up
     container_refined.ply   the container at its refined pose (train.refine.pose)
     result.json             what the run reports when it ends (or why it failed)
     .lock                   the process that drives the run (a kernel lock: :class:`RunLock`)
@@ -105,6 +107,7 @@ class RunFolder:
     images = _File('images')
     meshes = _File('meshes')
     mesh = _File('mesh.ply')
+    web_mesh = _File('mesh.glb')
     container = _File('container_refined.ply')
     result = _File('result.json')
     lock_file = _File('.lock')
@@ -180,7 +183,9 @@ class RunFolder:
     def check_start(self, resume: bool = False) -> RunState:
         """Refuse, in one line naming the state and what it takes, a new run (or with
         ``resume`` a continued one) that the folder's state does not take; return the state."""
-        state = self.state()
+        # A process that holds the lock (a batch worker preparing its specimen) starts the run
+        # it holds: what the files record decides.
+        state = self.recorded_state() if self.lock().held_here() else self.state()
         if state.name == 'running':
             raise ReneusError(f'{self.path}: run is in use by {state.reason}; expected one process '
                               'per run folder')
@@ -328,10 +333,14 @@ class RunLock:
         RunLock._held[self.path] = [fd, 1]
         self.held = True
 
+    def held_here(self) -> bool:
+        """Whether this process holds the lock."""
+        return self.path in RunLock._held
+
     def owner(self) -> str | None:
         """Who holds the lock ('process N', on another host 'process N on HOST'); None when
         nobody does."""
-        if self.path in RunLock._held:
+        if self.held_here():
             return f'process {os.getpid()}'
         try:
             fd = os.open(self.path, os.O_RDONLY)

@@ -421,7 +421,7 @@ class Trainer:
         try:
             mesh = self.write_mesh(mesh_path)
             result['components'] = components(mesh)
-            result['glb'] = self.write_glb(mesh, os.path.splitext(mesh_path)[0] + '.glb')
+            result['glb'] = self.write_glb(mesh, self.folder.web_mesh)
         except NoSurfaceError as e:
             # A run never ends without its mesh file: an empty one, and the reason.
             write_mesh(trimesh.Trimesh(), mesh_path)

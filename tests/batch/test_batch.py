@@ -79,7 +79,7 @@ def test_the_broken_specimen_fails_alone(engine, collection, tmp_path, umask_022
         states = run_batch(specimens, str(runs), make, say=lambda _: None)
     finally:
         close()
-    assert states['a'] == states['c'] == 'finished'
+    assert states['a'].startswith('finished') and states['c'].startswith('finished')
     assert states['b'].startswith('failed (') and BROKEN in states['b'] and '\n' not in states['b']
     rows = {r['name']: r for r in _summary(runs)}
     for name in 'ac':
@@ -106,7 +106,7 @@ def test_the_broken_specimen_fails_alone(engine, collection, tmp_path, umask_022
     assert [len(BatchFolder(runs).specimen(n).read_attempts()) for n in 'ac'] == [1, 1]
     # Asked to: a starts over, c is left.
     states = run_batch(specimens, str(runs), make, redo=['a'], say=lambda _: None)
-    assert states['a'] == 'finished' and os.path.getmtime(runs / 'c' / 'checkpoint.npz') == stamps['c']
+    assert states['a'].startswith('finished') and os.path.getmtime(runs / 'c' / 'checkpoint.npz') == stamps['c']
     assert [len(BatchFolder(runs).specimen(n).read_attempts()) for n in 'ac'] == [2, 1]
     assert len((runs / 'a' / 'log.jsonl').read_text().splitlines()) == 6
 
@@ -162,7 +162,7 @@ def test_a_killed_worker_is_resumed_exactly(collection, tmp_path):
     assert proc.returncode == 1, err
     step = json.loads((runs / 'a' / 'result.json').read_text())['iterations']
     reason = f'worker killed by SIGKILL at step {step}; the next batch resumes it from its checkpoint'
-    assert f'a: failed ({reason})' in out and 5 <= step < 40
+    assert f'a: failed ({reason}' in out and 5 <= step < 40
     before = log.read_text().splitlines()
     proc = _batch_process(manifest, runs)
     out, err = proc.communicate(timeout=120)
@@ -227,7 +227,7 @@ def test_capture_folders(simulated_capture, tmp_path):
     runs = tmp_path / 'runs'
     states = run_batch(read_collection(str(drawer), preset='tiny'), str(runs), _engine('local', workers=1),
                        say=lambda _: None)
-    assert states['moth'] == 'finished' and 'size_mm is not given' in states['wasp']
+    assert states['moth'].startswith('finished') and 'size_mm is not given' in states['wasp']
     files = BatchFolder(runs).specimen('moth')
     report = json.loads(open(os.path.join(files.dataset, 'report.json')).read())
     assert len(report['views']) == len(simulated_capture['meta']['views'])
