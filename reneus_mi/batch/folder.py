@@ -27,7 +27,7 @@ import json
 import os
 from dataclasses import dataclass
 
-from reneus_mi.train.run_folder import RunFolder, RunLock
+from reneus_mi.train.run_folder import FolderFile, RunFolder, RunLock
 
 #: The batch's own folder inside RUNS_DIR (no specimen name starts with an underscore).
 WORK = '_batch'
@@ -37,22 +37,17 @@ SUMMARY_CSV, SUMMARY_HTML = 'summary.csv', 'summary.html'
 RESERVED = (WORK, SUMMARY_CSV, SUMMARY_HTML)
 
 
-def _in(*names: str) -> property:
-    """The path ``names`` below the folder's ``path``."""
-    return property(lambda self: os.path.join(self.path, *names))
-
-
 @dataclass(frozen=True)
 class SpecimenFiles:
     """What the batch keeps for one specimen beside its run folder."""
     path: str
 
-    scene = _in('scene.xml')
-    dataset = _in('dataset')
-    preview = _in('preview.png')
-    metrics = _in('metrics.json')
-    attempts = _in('attempts.jsonl')
-    worker_log = _in('worker.log')
+    scene = FolderFile('scene.xml')
+    dataset = FolderFile('dataset')
+    preview = FolderFile('preview.png')
+    metrics = FolderFile('metrics.json')
+    attempts = FolderFile('attempts.jsonl')
+    worker_log = FolderFile('worker.log')
 
     def read_metrics(self) -> dict:
         return _read_json(self.metrics) or {}
@@ -84,11 +79,11 @@ class BatchFolder:
     def __post_init__(self):
         object.__setattr__(self, 'path', os.path.abspath(os.fspath(self.path)))
 
-    work = _in(WORK)
-    summary_csv = _in(SUMMARY_CSV)
-    summary_html = _in(SUMMARY_HTML)
-    collection = _in(WORK, 'collection.json')
-    slurm = _in(WORK, 'slurm')
+    work = FolderFile(WORK)
+    summary_csv = FolderFile(SUMMARY_CSV)
+    summary_html = FolderFile(SUMMARY_HTML)
+    collection = FolderFile(WORK, 'collection.json')
+    slurm = FolderFile(WORK, 'slurm')
 
     def lock(self) -> RunLock:
         """The batch's lock: one batch process drives a batch folder."""

@@ -84,11 +84,13 @@ class RunState:
         return 'continue it with --resume'
 
 
-class _File:
-    """A file of a run folder: its name on the class (``RunFolder.log``), its path on a folder."""
+class FolderFile:
+    """A file of a folder object (one with a ``path``): its name on the class
+    (``RunFolder.log``), its path on an instance. ``names`` are the parts of a path inside
+    the folder."""
 
-    def __init__(self, name: str):
-        self.name = name
+    def __init__(self, *names: str):
+        self.name = os.path.join(*names)
 
     def __get__(self, folder, owner=None) -> str:
         return self.name if folder is None else os.path.join(folder.path, self.name)
@@ -100,17 +102,17 @@ class RunFolder:
 
     path: str
 
-    config = _File('config.json')
-    scene_copy = _File('scene_copy')
-    log = _File('log.jsonl')
-    checkpoint = _File('checkpoint.npz')
-    images = _File('images')
-    meshes = _File('meshes')
-    mesh = _File('mesh.ply')
-    web_mesh = _File('mesh.glb')
-    container = _File('container_refined.ply')
-    result = _File('result.json')
-    lock_file = _File('.lock')
+    config = FolderFile('config.json')
+    scene_copy = FolderFile('scene_copy')
+    log = FolderFile('log.jsonl')
+    checkpoint = FolderFile('checkpoint.npz')
+    images = FolderFile('images')
+    meshes = FolderFile('meshes')
+    mesh = FolderFile('mesh.ply')
+    web_mesh = FolderFile('mesh.glb')
+    container = FolderFile('container_refined.ply')
+    result = FolderFile('result.json')
+    lock_file = FolderFile('.lock')
 
     def __post_init__(self):
         object.__setattr__(self, 'path', os.fspath(self.path))
@@ -267,7 +269,7 @@ class RunFolder:
 
 
 #: Every name a run writes into its folder.
-FILES = tuple(f.name for f in vars(RunFolder).values() if isinstance(f, _File))
+FILES = tuple(f.name for f in vars(RunFolder).values() if isinstance(f, FolderFile))
 
 
 def recent_psnr(entries: list[dict], n: int = 100) -> float | None:
