@@ -17,7 +17,7 @@ from reneus_mi.render.optics import interface
 from reneus_mi.render.ray_samplers import SamplerConfig
 from reneus_mi.render.seeds import opaque_seed
 from reneus_mi.render.surroundings import Surroundings
-from reneus_mi.render.volume_rendering import gather_subset, volume_render
+from reneus_mi.render.volume_rendering import volume_render
 
 VARIANT = mi.variant()
 
@@ -337,7 +337,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         if dr.width(seg) == 0:
             return T
         s = rays.take(seg)
-        t = gather_subset(mi.Float, t_far, seg)
+        t = dr.gather(mi.Float, t_far, seg)
         u = None if jitter is None else dr.gather(mi.Float, jitter, s.camera)
         vr = volume_render(self.field, self.sampler, self.frame.to_field(s.o), s.d,
                            dr.zeros(mi.Float, dr.width(seg)), t / self.frame.scale, jitter=u,
@@ -366,7 +366,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         half = dr.opaque(mi.UInt32, n)
         refracted = j >= half
         lane = dr.select(refracted, j - half, j)
-        β_all = dr.select(refracted, gather_subset(mi.Float, β_t, lane), gather_subset(mi.Float, β_r, lane))
+        β_all = dr.select(refracted, dr.gather(mi.Float, β_t, lane), dr.gather(mi.Float, β_r, lane))
         alive = dr.gather(mi.Bool, hit.valid, lane) & (dr.detach(β_all) > 0.0)
         threshold = self.model.render.rr_threshold
         if threshold > 0.0:
@@ -381,9 +381,9 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             return rays.take(keep)
         lane = dr.gather(mi.UInt32, lane, keep)
         refracted = dr.gather(mi.Bool, refracted, keep)
-        d = dr.select(refracted, gather_subset(mi.Vector3f, d_t, lane), gather_subset(mi.Vector3f, d_r, lane))
-        o = _offset(gather_subset(mi.Point3f, hit.p, lane), gather_subset(type(hit.n), hit.n, lane), d)
-        return _Rays(o=o, d=d, β=gather_subset(mi.Float, β_all, keep),
+        d = dr.select(refracted, dr.gather(mi.Vector3f, d_t, lane), dr.gather(mi.Vector3f, d_r, lane))
+        o = _offset(dr.gather(mi.Point3f, hit.p, lane), dr.gather(type(hit.n), hit.n, lane), d)
+        return _Rays(o=o, d=d, β=dr.gather(mi.Float, β_all, keep),
                      camera=dr.gather(mi.UInt32, rays.camera, lane))
 
     # ------------------------------------------------------------ the scene
@@ -479,8 +479,8 @@ class _Rays:
         return dr.width(self.camera)
 
     def take(self, index: mi.UInt32) -> '_Rays':
-        return _Rays(o=gather_subset(mi.Point3f, self.o, index), d=gather_subset(mi.Vector3f, self.d, index),
-                     β=gather_subset(mi.Float, self.β, index), camera=dr.gather(mi.UInt32, self.camera, index))
+        return _Rays(o=dr.gather(mi.Point3f, self.o, index), d=dr.gather(mi.Vector3f, self.d, index),
+                     β=dr.gather(mi.Float, self.β, index), camera=dr.gather(mi.UInt32, self.camera, index))
 
 
 class _Accumulator:

@@ -61,17 +61,6 @@ def _check_widths(**arrays) -> int:
     return n_rays
 
 
-def gather_subset(cls, source, index: mi.UInt32, active=True):
-    """``dr.gather`` of ``index`` picking few lanes per element of ``source``, an array whose
-    width changes from step to step (live rays, inside segments).
-
-    Its reverse mode is an atomic scatter-add into ``source``'s gradient. Left to choose,
-    Dr.Jit's LLVM backend would expand that target per thread and compile the array's
-    width into the kernel: every new width compiled anew (seconds) once a refined IOR or
-    pose sends gradients through the ray tree."""
-    return dr.gather(cls, source, index, active, mode=dr.ReduceMode.Direct)
-
-
 def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float,
                   t_far: mi.Float, *, jitter: mi.Float | None = None, cos_anneal_ratio: float = 1.0) -> VolumeResult:
     """Volume render the segments ``o + t d``, ``t ∈ [t_near, t_far]``, through ``field``.
@@ -95,8 +84,8 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
     if keep is None:
         return _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio)
     n_kept = dr.width(keep)
-    r = _render(field, sampler, gather_subset(mi.Point3f, o, keep), gather_subset(mi.Vector3f, d, keep),
-                segments.t_near, segments.t_far, None if jitter is None else gather_subset(mi.Float, jitter, keep),
+    r = _render(field, sampler, dr.gather(mi.Point3f, o, keep), dr.gather(mi.Vector3f, d, keep),
+                segments.t_near, segments.t_far, None if jitter is None else dr.gather(mi.Float, jitter, keep),
                 cos_anneal_ratio)
     if n_kept == n_rays:
         return r

@@ -153,3 +153,27 @@ def test_degenerate_inputs():
         volume_render(field, SamplerConfig().setup(), o, d, t_near, mi.Float(1.0, 2.0))
     with pytest.raises(ValueError, match='cos_anneal_ratio'):
         volume_render(field, SamplerConfig().setup(), o, d, t_near, t_far, cos_anneal_ratio=1.5)
+
+
+def test_reverse_gathers_reuse_their_kernels_at_any_width():
+    """The reverse mode of a gather is a scatter-add into the source's gradient, and the ray
+    tree's arrays (live rays, inside segments) change width every step. Dr.Jit's LLVM
+    backend, left to choose, expanded such targets per thread with the width compiled in:
+    refining runs compiled a kernel at almost every step (reneus_mi.variant switches the
+    expansion off). The kernels must be the same ones whatever the width, and the adjoints
+    summed right."""
+    def kernels(width):
+        src = dr.opaque(mi.Float, 1.0, width)
+        dr.enable_grad(src)
+        lanes = dr.arange(mi.UInt32, 4096)
+        y = dr.gather(mi.Float, src, lanes % dr.opaque(mi.UInt32, width))
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory):
+            dr.backward(dr.sum(y * y))
+            grad = dr.grad(src)
+            dr.eval(grad)
+            hashes = {k['hash'] for k in dr.kernel_history() if k.get('type') == dr.KernelType.JIT}
+        assert float(grad[0]) == 2.0 * len(range(0, 4096, width))   # lanes that read element 0
+        return hashes
+
+    first = kernels(1001)
+    assert first and all(kernels(width) == first for width in (1003, 1007))
