@@ -29,7 +29,7 @@ def data(tmp_path_factory):
     return folder
 
 
-def reconstruct(folder, mode, iterations, preset='small'):
+def reconstruct(folder, mode, iterations, preset):
     ds = load_dataset(str(folder / 'box'))
     xml = str(folder / f'scene_{preset}_{mode}.xml')
     write_scene(ds, xml, preset=preset, mode=mode)
@@ -44,27 +44,33 @@ def reconstruct(folder, mode, iterations, preset='small'):
     return initial['chamfer'], final['chamfer'], result['psnr']
 
 
+@pytest.fixture(scope='module')
+def fast_reneus(data):
+    """The fast preset's reconstruction through the glass (shared by the tests below)."""
+    return reconstruct(data, 'reneus', ITERATIONS, preset='fast')
+
+
 @pytest.mark.slow
-def test_reneus_reconstructs_and_explains_the_photographs_neus_cannot(data):
-    sphere, reneus, psnr_reneus = reconstruct(data, 'reneus', ITERATIONS)
-    _, neus, psnr_neus = reconstruct(data, 'neus', ITERATIONS)
+def test_reneus_reconstructs_and_explains_the_photographs_neus_cannot(data, fast_reneus):
+    """The same field and steps with plain NeuS, which ignores the glass. Measured: PSNR 29.3
+    against 24.0 dB; Chamfer-L1 x100 1.95 against 3.57 from a sphere at 12.7. (The paper's MLP
+    field, the `small` preset, took 7 minutes of the suite for the same claim; the fields'
+    own tests and bench/compare.py's table cover it.)"""
+    sphere, reneus, psnr_reneus = fast_reneus
+    _, neus, psnr_neus = reconstruct(data, 'neus', ITERATIONS, preset='fast')
     print(f'Chamfer-L1 x100: initial sphere {sphere:.2f}, reneus {reneus:.2f}, neus {neus:.2f}; '
           f'PSNR (last 100 steps) reneus {psnr_reneus:.1f} dB, neus {psnr_neus:.1f} dB')
-    assert reneus < 0.85 * sphere
-    # NeuS, ignoring the glass, cannot render the photographs: measured 24.5 against 20.4 dB
-    # (the vase: 20.3 against 17.9). At this size (200 steps, 16 views of 32 px) the two
-    # Chamfer distances are within seed noise of each other (7.62 vs 6.89, an earlier seed
-    # 7.66 vs 8.75), so their order is not asserted; docs/comparison.md compares them.
+    # At this size (200 steps, 16 views of 32 px) the Chamfer order is close to seed noise
+    # (the MLP field: 7.62 vs 6.89, another seed 7.66 vs 8.75), so only the photographs decide.
     assert psnr_reneus > psnr_neus + 2.0
 
 
 @pytest.mark.slow
-def test_fast_preset_reconstructs_in_a_fraction_of_the_time(data):
-    """The hash-grid field on the same photographs: at least the MLP's margin over the sphere.
+def test_fast_preset_reconstructs_in_a_fraction_of_the_time(fast_reneus):
+    """The hash-grid field through the glass: at least half of the way from the sphere.
 
-    Measured: 2.1 after 300 steps in 52 s, where the small NeuS field reaches 7.6 after
-    200 steps in about 2 minutes.
+    Measured: 1.95 from 12.7 after 200 steps, in about a minute.
     """
-    sphere, fast, _ = reconstruct(data, 'reneus', ITERATIONS, preset='fast')
+    sphere, fast, _ = fast_reneus
     print(f'Chamfer-L1 x100: initial sphere {sphere:.2f}, fast preset {fast:.2f}')
     assert fast < 0.5 * sphere
