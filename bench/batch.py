@@ -66,7 +66,7 @@ def one_batch(collection: str, out: str, engine: str, workers: int, args) -> dic
         wall = time.perf_counter() - start
         shutdown()
     loads.append(os.getloadavg()[0])
-    finished = sum(s == 'finished' for s in states.values())
+    finished = sum(s.name == 'finished' for s in states.values())
     return {'engine': engine, 'workers': workers, 'threads': threads, 'wall': wall, 'finished': finished,
             'per_hour': finished / wall * 3600, 'ray_start': ray_start, 'load': max(loads)}
 

@@ -15,8 +15,12 @@ import argparse
 import functools
 import sys
 import warnings
+from typing import TYPE_CHECKING
 
 from reneus_mi.errors import exit_on_error
+
+if TYPE_CHECKING:
+    from reneus_mi.train.run_folder import RunState
 
 
 def main(argv=None) -> int:
@@ -57,13 +61,13 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     with exit_on_error(RuntimeError):
         states = run(args)
-    failed = [n for n, s in states.items() if s.startswith('failed')]
-    finished = sum(s == 'finished' for s in states.values())
+    failed = [n for n, s in states.items() if s.name == 'failed']
+    finished = sum(s.name == 'finished' for s in states.values())
     print(f'{finished} of {len(states)} finished' + (f'; failed: {", ".join(failed)}' if failed else ''))
     return 1 if failed else 0
 
 
-def run(args) -> dict[str, str]:
+def run(args) -> dict[str, RunState]:
     from reneus_mi.batch import engines
     from reneus_mi.batch.collection import read_collection
     from reneus_mi.batch.folder import BatchFolder

@@ -30,6 +30,7 @@ from reneus_mi.batch.collection import Specimen
 from reneus_mi.batch.folder import RESERVED, BatchFolder
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_write_text
+from reneus_mi.train.run_folder import RunState
 
 #: Seconds between progress lines while nothing ends.
 HEARTBEAT = 60.0
@@ -47,7 +48,7 @@ def check_folder(root: str, specimens: list[Specimen]) -> BatchFolder:
 
 
 def run_batch(specimens: list[Specimen], root: str, make_engine: Callable, *, redo=(),
-              say: Callable[[str], None] = print) -> dict[str, str]:
+              say: Callable[[str], None] = print) -> dict[str, RunState]:
     """Run ``specimens`` in ``root/<name>`` on the engine ``make_engine(configs, files_of,
     tasks)`` returns; ``redo``: names (or ``'all'``) of runs to start over. Returns each
     specimen's state when the batch ends."""
@@ -140,5 +141,5 @@ def _settle(batch, name: str, outcome: dict, engine: str):
     return folder.state()
 
 
-def _states(batch, specimens) -> dict[str, str]:
-    return {s.name: str(batch.run(s.name).state()) for s in specimens}
+def _states(batch, specimens) -> dict[str, RunState]:
+    return {s.name: batch.run(s.name).state() for s in specimens}

@@ -79,8 +79,8 @@ def test_the_broken_specimen_fails_alone(engine, collection, tmp_path, umask_022
         states = run_batch(specimens, str(runs), make, say=lambda _: None)
     finally:
         close()
-    assert states['a'].startswith('finished') and states['c'].startswith('finished')
-    assert states['b'].startswith('failed (') and BROKEN in states['b'] and '\n' not in states['b']
+    assert states['a'].name == states['c'].name == 'finished'
+    assert states['b'].name == 'failed' and BROKEN in states['b'].reason and '\n' not in str(states['b'])
     rows = {r['name']: r for r in _summary(runs)}
     for name in 'ac':
         result = json.loads((runs / name / 'result.json').read_text())
@@ -101,12 +101,12 @@ def test_the_broken_specimen_fails_alone(engine, collection, tmp_path, umask_022
     # Again: b is retried, a and c are not touched.
     stamps = {n: os.path.getmtime(runs / n / 'checkpoint.npz') for n in 'ac'}
     states = run_batch(specimens, str(runs), make, say=lambda _: None)
-    assert BROKEN in states['b'] and len(BatchFolder(runs).specimen('b').read_attempts()) == 2
+    assert BROKEN in states['b'].reason and len(BatchFolder(runs).specimen('b').read_attempts()) == 2
     assert {n: os.path.getmtime(runs / n / 'checkpoint.npz') for n in 'ac'} == stamps
     assert [len(BatchFolder(runs).specimen(n).read_attempts()) for n in 'ac'] == [1, 1]
     # Asked to: a starts over, c is left.
     states = run_batch(specimens, str(runs), make, redo=['a'], say=lambda _: None)
-    assert states['a'].startswith('finished') and os.path.getmtime(runs / 'c' / 'checkpoint.npz') == stamps['c']
+    assert states['a'].name == 'finished' and os.path.getmtime(runs / 'c' / 'checkpoint.npz') == stamps['c']
     assert [len(BatchFolder(runs).specimen(n).read_attempts()) for n in 'ac'] == [2, 1]
     assert len((runs / 'a' / 'log.jsonl').read_text().splitlines()) == 6
 
@@ -166,7 +166,7 @@ def test_a_killed_worker_is_resumed_exactly(collection, tmp_path):
     before = log.read_text().splitlines()
     proc = _batch_process(manifest, runs)
     out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 0 and 'a: finished' in out, (out, err)
+    assert proc.returncode == 0 and 'a: finished' in out and out.rstrip().endswith('1 of 1 finished'), (out, err)
     proc = _batch_process(manifest, whole)
     assert proc.communicate(timeout=120) and proc.returncode == 0
     assert_same_state(file_state(whole / 'a' / 'checkpoint.npz'), file_state(runs / 'a' / 'checkpoint.npz'),
@@ -227,7 +227,7 @@ def test_capture_folders(simulated_capture, tmp_path):
     runs = tmp_path / 'runs'
     states = run_batch(read_collection(str(drawer), preset='tiny'), str(runs), _engine('local', workers=1),
                        say=lambda _: None)
-    assert states['moth'].startswith('finished') and 'size_mm is not given' in states['wasp']
+    assert states['moth'].name == 'finished' and 'size_mm is not given' in states['wasp'].reason
     files = BatchFolder(runs).specimen('moth')
     report = json.loads(open(os.path.join(files.dataset, 'report.json')).read())
     assert len(report['views']) == len(simulated_capture['meta']['views'])
