@@ -76,7 +76,9 @@ class OccupancyGrid:
         """Re-evaluate the field's SDF at every cell centre (one kernel, no gradient)."""
         with dr.suspend_grad():
             inv_s = float(dr.detach(field.inv_s())[0])
-            self.occupied = field.sdf(self.centres()) <= self.threshold(inv_s)
+            # Opaque: the threshold follows the sharpness s, and a literal would compile the
+            # update anew every time.
+            self.occupied = field.sdf(self.centres()) <= dr.opaque(mi.Float, self.threshold(inv_s))
             dr.eval(self.occupied)
 
     def fraction(self) -> float:

@@ -237,3 +237,15 @@ def test_config_errors_name_the_field(kwargs, message):
     with pytest.raises(ValueError, match=message) as e:
         SamplerConfig(**kwargs)
     assert '\n' not in str(e.value)
+
+
+def test_update_reuses_its_kernel_as_the_sharpness_grows():
+    """The threshold follows s: as data, or every update (each 16 steps) compiled anew."""
+    def hashes(inv_s):
+        grid = OccupancyGrid(32, 1.0, lipschitz=1.5, margin=0.0)
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory):
+            grid.update(SphereField(radius=0.3, inv_s=inv_s))
+            return {k['hash'] for k in dr.kernel_history() if k.get('type') == dr.KernelType.JIT}
+
+    first = hashes(20.0)
+    assert first and hashes(50.0) == first == hashes(400.0)
