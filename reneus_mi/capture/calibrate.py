@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from reneus_mi.capture.board import MIN_CORNERS, Board, Detection
-from reneus_mi.capture.undistort import opencv_K
+from reneus_mi.data.undistort import opencv_K
 from reneus_mi.errors import ReneusError
 
 #: A corner is an outlier beyond this many robust standard deviations (1.4826 MAD) ...

@@ -5,7 +5,7 @@ sparse model (``cameras``, ``images``, read by ``pycolmap``, text or binary) giv
 photograph's camera. The container is a mesh given in that model's frame (its units are the
 model's). Cameras of COLMAP's pinhole and OpenCV families (SIMPLE_PINHOLE, PINHOLE,
 SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV without its rational terms) are undistorted by
-:func:`reneus_mi.capture.undistort.undistort` to pinhole cameras. COLMAP's pixel convention
+:func:`reneus_mi.data.undistort.undistort` to pinhole cameras. COLMAP's pixel convention
 is reneus-mi's (the top-left pixel's centre at (0.5, 0.5)) and its cameras have OpenCV's
 axes, so poses are taken as they are: ``c2w = cam_from_world⁻¹``.
 
@@ -26,8 +26,9 @@ import numpy as np
 from reneus_mi import guards
 from reneus_mi.capture import photos
 from reneus_mi.capture.dataset import write_views
-from reneus_mi.capture.undistort import distortion, pinhole_K, scaled_size, undistort
 from reneus_mi.data.checks import check_ior
+from reneus_mi.data.images import image_size
+from reneus_mi.data.undistort import distortion, output_size, pinhole_K, undistort
 from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.geometry.container import load_container, mesh_type
 
@@ -105,8 +106,8 @@ def convert(sparse: str, images_dir: str, container: str, ior: float, out: str, 
         elif here != size:
             raise ReneusError(f'{sparse}: camera {im.camera_id} is {here[0]}x{here[1]}, another {size[0]}x{size[1]}; '
                               'expected one image size')
-        if photos.image_size(path) != here:
-            raise ReneusError(f'{path}: is {photos.image_size(path)}, but its COLMAP camera is {here}')
+        if image_size(path, upright=False) != here:
+            raise ReneusError(f'{path}: is {image_size(path, upright=False)}, but its COLMAP camera is {here}')
         pose = im.cam_from_world() if callable(im.cam_from_world) else im.cam_from_world
         w2c = np.eye(4)
         w2c[:3] = np.asarray(pose.matrix(), np.float64)
@@ -116,7 +117,7 @@ def convert(sparse: str, images_dir: str, container: str, ior: float, out: str, 
         c2ws.append(np.linalg.inv(w2c))
     if len(set(names)) != len(names):
         raise ReneusError(f'{sparse}: image names repeat once their folders are dropped; expected distinct names')
-    width, height, scale = scaled_size(*size, max_size=max_size, downscale=downscale)
+    width, height, scale = output_size(*size, max_size=max_size, downscale=downscale)
     photos.check_memory(len(files), size, (width, height))
     images, Ks = [], []
     for path, (K, dist) in zip(files, lenses):

@@ -6,7 +6,7 @@ capture folders.
    a capture where no photograph shows it, or shows another dictionary or layout.
 2. Calibrate (:mod:`~reneus_mi.capture.calibrate`), leaving out photographs that cannot take part.
 3. Undistort every photograph to the dataset's pinhole camera, scaled by ``--max-size`` or
-   ``--downscale`` (:mod:`~reneus_mi.capture.undistort`; memory checked first).
+   ``--downscale`` (:mod:`~reneus_mi.data.undistort`; memory checked first).
 4. Find the container (:mod:`~reneus_mi.capture.register`), or take ``--container-pose``.
 5. Calibrate again without the corners seen through the container, undistort again, refine
    the container's place from the first one.
@@ -31,7 +31,7 @@ from reneus_mi.capture.board import Board
 from reneus_mi.capture.calibrate import Calibration, calibrate
 from reneus_mi.capture.exposure import measure
 from reneus_mi.capture.register import Outline, register
-from reneus_mi.capture.undistort import pinhole_K, scaled_size, undistort
+from reneus_mi.data.undistort import output_size, pinhole_K, undistort
 from reneus_mi.errors import ReneusError
 
 #: Corners this many pixels of the photograph outside the container's projection still count
@@ -134,7 +134,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
     files = photos.list_photos(photos_dir)
     by_name = {os.path.basename(f): f for f in files}
     detections, size = detect_all(board, files)
-    width, height, scale = scaled_size(*size, max_size=s.max_size, downscale=s.downscale)
+    width, height, scale = output_size(*size, max_size=s.max_size, downscale=s.downscale)
     photos.check_memory(len(detections), size, (width, height))
     cal = calibrate(board, detections, size)
     K_out = pinhole_K(cal.K, scale)

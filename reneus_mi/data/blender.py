@@ -12,7 +12,7 @@ frame has ``file_path`` (with or without extension, relative to the folder) and
 ``transform_matrix``: camera-to-world with OpenGL axes. nerfstudio's lens distortion
 (``camera_model: OPENCV`` with ``k1``, ``k2``, ``p1``, ``p2`` and optionally ``k3``, at the
 top level or per frame) is taken out on reading: each image is resampled to the pinhole
-camera of the same intrinsics by :func:`reneus_mi.capture.undistort.undistort`, the one
+camera of the same intrinsics by :func:`reneus_mi.data.undistort.undistort`, the one
 undistortion of the package (pixels the photograph does not cover become black and leave
 the mask). Other camera models (fisheye, equirectangular) are refused. An image's alpha
 channel is its container mask; frames without alpha get the container's
@@ -29,7 +29,7 @@ import os
 
 import numpy as np
 
-from reneus_mi.capture.undistort import DISTORTION_KEYS, distortion, undistort
+from reneus_mi.data.undistort import DISTORTION_KEYS, distortion, undistort
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_write_text
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,

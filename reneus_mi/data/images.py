@@ -8,7 +8,8 @@ Mitsuba's :class:`~mitsuba.Bitmap` reads PNG, JPEG and EXR; OpenCV reads TIFF
 a dataset's memory is known before any photograph is decoded
 (:func:`check_images_fit`). A photograph whose EXIF orientation tag asks for it
 to be shown turned is refused by name: the cameras were posed on one of two
-pictures, and the file does not say which.
+pictures, and the file does not say which. The capture, which poses the cameras
+itself on the stored pixels, reads with ``upright=False`` (the tag does not apply).
 """
 from __future__ import annotations
 
@@ -49,11 +50,11 @@ _ORIENTATIONS = {2: 'mirror it left to right', 3: 'turn it by 180 degrees', 4: '
                  7: 'mirror it across its anti-diagonal', 8: 'turn it 90 degrees counter-clockwise'}
 
 
-def image_size(path: str) -> tuple[int, int]:
-    """(width, height) of an image file, from its header alone.
+def image_size(path: str, upright: bool = True) -> tuple[int, int]:
+    """(width, height) of an image file as stored, from its header alone.
 
-    Refuses a missing or unreadable file, and an EXIF orientation other than 1 (upright),
-    by name.
+    Refuses a missing or unreadable file and, with ``upright``, an EXIF orientation other
+    than 1 (upright), by name.
     """
     if not os.path.isfile(path):
         raise ReneusError(f"{path}: image file is missing")
@@ -75,7 +76,7 @@ def image_size(path: str) -> tuple[int, int]:
         raise ReneusError(f"{path}: unreadable image ({e}); expected {READ_TYPES}") from None
     finally:
         Image.MAX_IMAGE_PIXELS = guard
-    if orientation not in (None, 1):
+    if upright and orientation not in (None, 1):
         turn = _ORIENTATIONS.get(orientation, 'turn it')
         raise ReneusError(
             f"{path}: EXIF orientation {orientation} asks to {turn} for display; expected photographs "
@@ -100,12 +101,19 @@ def _orientation(image) -> int | None:
     return image.getexif().get(0x0112)
 
 
+def reduction(width: int, height: int, max_size: int) -> float:
+    """The scale that brings an image's longest side down to ``max_size`` (0: 1, as it is)."""
+    return min(1.0, max_size / max(width, height)) if max_size else 1.0
+
+
+def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
+    """The size of an image scaled by ``scale``, each side rounded and at least one pixel."""
+    return max(1, int(round(width * scale))), max(1, int(round(height * scale)))
+
+
 def reduced_size(width: int, height: int, max_size: int) -> tuple[int, int]:
     """The size of an image whose longest side is brought down to ``max_size`` (0: as it is)."""
-    if not max_size or max(width, height) <= max_size:
-        return width, height
-    scale = max_size / max(width, height)
-    return max(1, int(round(width * scale))), max(1, int(round(height * scale)))
+    return scaled_size(width, height, reduction(width, height, max_size))
 
 
 def resize(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -132,12 +140,13 @@ def check_images_fit(files: list[str], max_size: int, where: str, extra_per_pixe
     limits.check_memory(need, f'{where}: {len(files)} photographs of {w}x{h}{at} (lower it with {REDUCE_OPTION})')
 
 
-def read_image(path: str) -> tuple[np.ndarray, np.ndarray | None]:
+def read_image(path: str, upright: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Return ``(rgb, alpha)``: (H,W,3) float32 in [0,1], and (H,W) float32 or None.
 
-    Grey images are expanded to RGB; ``alpha`` is None when the file has none.
+    Grey images are expanded to RGB; ``alpha`` is None when the file has none. The pixels
+    as stored; ``upright`` as in :func:`image_size`.
     """
-    image_size(path)
+    image_size(path, upright)
     if os.path.splitext(path)[1].lower() in _TIFF:
         rgba, has_alpha = _read_tiff(path)
     else:

@@ -11,7 +11,7 @@ import pytest
 
 from reneus_mi.capture import command, settings
 from reneus_mi.capture.simulate import Rig, distort_image
-from reneus_mi.capture.undistort import undistort
+from reneus_mi.data.undistort import undistort
 from reneus_mi.data import load_dataset
 
 
@@ -227,7 +227,7 @@ def test_undistortion_inverts_a_known_lens():
     assert np.abs(back - pinhole)[inner].mean() < 0.01
     assert np.abs(photo - pinhole)[inner].mean() > 0.05
     # To half the size (a smoother pattern): the pinhole image averaged 2x2.
-    from reneus_mi.capture.undistort import pinhole_K
+    from reneus_mi.data.undistort import pinhole_K
     pinhole = (0.5 + 0.25 * np.sin(2 * np.pi * xs / 24.0) * np.cos(2 * np.pi * ys / 30.0)).astype(np.float32)
     photo = distort_image(pinhole, K_r, rig)
     half, covered = undistort(photo, K, rig.distortion, pinhole_K(K, 0.5), (160, 120))

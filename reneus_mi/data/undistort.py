@@ -17,6 +17,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from reneus_mi.data.images import reduction, scaled_size
 from reneus_mi.errors import ReneusError
 
 #: Distortion coefficients in OpenCV's order.
@@ -42,15 +43,14 @@ def distortion(values, where: str) -> np.ndarray:
     return d
 
 
-def scaled_size(width: int, height: int, *, max_size: int | None = None,
+def output_size(width: int, height: int, *, max_size: int | None = None,
                 downscale: float | None = None) -> tuple[int, int, float]:
     """Output size and scale factor: at most ``max_size`` pixels on a side, or 1/``downscale``."""
-    scale = 1.0
-    if max_size is not None:
-        scale = min(1.0, max_size / max(width, height))
-    elif downscale is not None:
+    if max_size is None and downscale is not None:
         scale = 1.0 / downscale
-    return max(1, int(round(width * scale))), max(1, int(round(height * scale))), scale
+    else:
+        scale = reduction(width, height, max_size or 0)
+    return *scaled_size(width, height, scale), scale
 
 
 def pinhole_K(K: np.ndarray, scale: float) -> np.ndarray:
@@ -72,7 +72,7 @@ def undistort(image: np.ndarray, K: np.ndarray, dist, K_out: np.ndarray,
     scale = K_out[0, 0] / K_src[0, 0]
     if scale < 1.0:
         # Area averaging to the output's sampling first; K follows the resize exactly.
-        small = (max(1, int(round(w * scale))), max(1, int(round(h * scale))))
+        small = scaled_size(w, h, scale)
         image = cv2.resize(image, small, interpolation=cv2.INTER_AREA)
         K_src = np.diag([small[0] / w, small[1] / h, 1.0]) @ K_src
         h, w = image.shape[:2]
