@@ -1,6 +1,7 @@
 """Every preset loads in a scene and renders."""
 import dataclasses
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -23,7 +24,8 @@ def test_each_preset_loads_and_renders(name):
     given = {key.removeprefix('field_'): value for key, value in narrower.items()}
     assert model == dataclasses.replace(PRESETS[name].model,
                                         field=dataclasses.replace(PRESETS[name].model.field, **given))
-    if narrower:
-        assert PRESETS[name].model.field.setup().params()       # built at its own size
+    if narrower:    # built at its own size: its networks, and the sharpness s
+        full = PRESETS[name].model.field
+        assert sum(dr.width(v) for v in full.setup().params().values()) == full.parameters() + 1
     image = np.array(mi.render(scene, spp=1))
     assert image.shape == (3, 3, 3) and np.all(np.isfinite(image)) and image.min() >= 0
