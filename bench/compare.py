@@ -77,10 +77,11 @@ def configs() -> dict:
     }
 
 
-def resolve(config: str, iterations: int | None = None, **overrides) -> dict:
+def resolve(config: str, iterations: int | None = None, preset: str | None = None, **overrides) -> dict:
     """The settings of ``config`` with ``--iterations`` and test-size overrides applied.
 
-    ``overrides`` may hold ``data`` / ``train`` dicts merged into the configuration's.
+    ``preset`` replaces the configuration's; ``overrides`` may hold ``data`` / ``train`` dicts
+    merged into the configuration's.
     """
     all_cfgs = configs()
     if config not in all_cfgs:
@@ -90,6 +91,8 @@ def resolve(config: str, iterations: int | None = None, **overrides) -> dict:
         cfg[part].update(values or {})
     if iterations is not None:
         cfg['train']['iterations'] = int(iterations)
+    if preset is not None:
+        cfg['preset'] = preset
     cfg['name'] = config
     return cfg
 

@@ -25,8 +25,7 @@ TINY = dict(data={'views': 8, 'res': 16, 'spp': 16},
 @pytest.fixture(scope='module')
 def tiny(tmp_path_factory):
     root = tmp_path_factory.mktemp('compare')
-    cfg = compare.resolve('small', 10, **TINY)
-    cfg['preset'] = 'tiny'
+    cfg = compare.resolve('small', 10, preset='tiny', **TINY)
     out, doc = str(root / 'runs'), str(root / 'docs')
     results = compare.compare(['statuette'], cfg, out, doc)
     return cfg, out, doc, results
