@@ -16,7 +16,7 @@ subprocesses::
 and records Chamfer-L1 x100 of the run's mesh as the run cleaned it (``--postprocess none``;
 another rule of evaluate's with ``--postprocess``) and the connected components of the run's ``mesh.ply`` as the run wrote it
 (:func:`reneus_mi.geometry.surface.components`). Every budget is a separate run. It writes ``DOC/quality.md`` (one table per scene, the command, the date, the
-machine's load) and ``DOC/quality/SCENE_VARIANT_PRESET_Mmin.png``: the mesh beside the
+share of the CPU other processes took during each row) and ``DOC/quality/SCENE_VARIANT_PRESET_Mmin.png``: the mesh beside the
 ground truth, rendered by Mitsuba from the same camera. A run that fails or is skipped is
 a row with its reason. Finished runs (an ``evaluate.json``) are read back, so a killed
 benchmark continues where it stopped; ``--fresh`` runs everything again. A smoke run:
@@ -29,6 +29,7 @@ import datetime
 import json
 import os
 import platform
+import resource
 import shlex
 import shutil
 import subprocess
@@ -48,6 +49,9 @@ PICTURE = 160
 #: Extra wall-clock time a run may take beyond its budget (kernel compilation, mesh
 #: extraction) before it counts as hung.
 GRACE_S = 900
+#: Share of the machine's CPU taken by other processes above which a row is marked as run on
+#: a loaded machine.
+LOADED = 0.1
 
 
 def parse_configs(items) -> list[tuple[str, float]]:
@@ -90,6 +94,23 @@ def _run(cmd: list[str], log, timeout: float) -> str | None:
     return f'{cmd[2]}: {reason}'
 
 
+def busy_seconds() -> float | None:
+    """CPU seconds the whole machine has spent busy since boot (Linux ``/proc/stat``; None
+    elsewhere)."""
+    try:
+        with open('/proc/stat') as f:
+            ticks = [int(v) for v in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    idle = ticks[3] + (ticks[4] if len(ticks) > 4 else 0)  # idle + iowait
+    return (sum(ticks[:8]) - idle) / os.sysconf('SC_CLK_TCK')
+
+
+def children_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def count_components(mesh_path: str) -> int:
     """Connected pieces of the run's mesh as it wrote it (0 when it holds no surface)."""
     from reneus_mi.errors import ReneusError
@@ -114,6 +135,10 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
     if not os.path.isfile(gt):
         return {**row, 'status': f'skipped: no ground truth at {gt}'}
     if os.path.isfile(evaluation) and not fresh:
+        machine = os.path.join(folder, f'{_tag(preset, minutes)}.machine.json')
+        if os.path.isfile(machine):
+            with open(machine) as f:
+                row.update(json.load(f))
         return {**row, **_read(run, evaluation), 'reused': True}
     if os.path.exists(run):
         # A run of this benchmark that did not finish (or --fresh): its folder is ours.
@@ -127,13 +152,20 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
                  [py, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation,
                   *(['--postprocess', postprocess] if postprocess else [])]]
         timeouts = [GRACE_S, 60 * minutes + GRACE_S, GRACE_S]
-        start = time.perf_counter()
+        start, busy, own = time.perf_counter(), busy_seconds(), children_seconds()
         for cmd, timeout in zip(steps, timeouts):
             failure = _run(cmd, log, timeout)
             if failure:
                 row['status'] = f'failed: {failure}'
                 break
         row['wall_s'] = time.perf_counter() - start
+        if busy is not None:
+            # What other processes took of the machine while this row ran: a load average
+            # cannot tell the benchmark's own runs from others'.
+            others = busy_seconds() - busy - (children_seconds() - own)
+            row['others'] = max(0.0, others / (row['wall_s'] * (os.cpu_count() or 1)))
+    with open(os.path.join(folder, f'{_tag(preset, minutes)}.machine.json'), 'w') as f:
+        json.dump({k: row[k] for k in ('wall_s', 'others') if k in row}, f)
     if 'status' in row:
         return {**row, **_read(run, None)}
     return {**row, **_read(run, evaluation)}
@@ -220,15 +252,14 @@ def _fmt(value, spec: str) -> str:
     return '' if value is None or value != value else format(value, spec)
 
 
-def write_doc(rows: list[dict], doc: str, command: str, started: dict, ended: dict,
+def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: float,
               configs: list[tuple[str, float]]) -> str:
     smoke = max(m for _, m in configs) < 2
     lines = ['# Reconstruction quality on a second renderer\'s photographs', '',
-             f'Written by `{command}` on {started["date"]} ({ended["minutes"]:.0f} min).', '',
-             f'Machine: {started["machine"]}; load average (1 min) {started["load"]:.2f} when it '
-             f'started, {ended["load"]:.2f} when it ended'
-             + (' (shared: the figures are those of a loaded machine)'
-                if max(started['load'], ended['load']) > 0.5 * (os.cpu_count() or 1) else '') + '.', '']
+             f'Written by `{command}` on {started["date"]} ({minutes:.0f} min).', '',
+             f'Machine: {started["machine"]}. Column "others": the share of the machine\'s CPU that '
+             f'other processes took while the row ran; a row above {LOADED:.0%} ran on a **loaded '
+             'machine** and is marked so (blank: not measured).', '']
     if smoke:
         lines += ['**A smoke run**: budgets under 2 minutes say nothing about quality.', '']
     lines += ['Data: `bench/blender_set.py` (Blender Cycles, a glass block IOR 1.45 exported by '
@@ -244,14 +275,16 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, ended: di
               'Pictures: the mesh (left) beside the ground truth (right).', '']
     for scene in dict.fromkeys(r['scene'] for r in rows):
         lines += [f'## {scene}', '', '| variant | preset | budget | Chamfer x100 | components | steps | '
-                  'PSNR | status | picture |', '| --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+                  'PSNR | others | status | picture |',
+                  '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
         for r in (r for r in rows if r['scene'] == scene):
             pic = f"[png]({r['picture']})" if r.get('picture') else ''
             comp = _fmt(r.get('components'), 'd')
-            status = r['status'] + (' (earlier run)' if r.get('reused') else '')
+            status = (r['status'] + (' (earlier run)' if r.get('reused') else '')
+                      + (', **loaded machine**' if r.get('others', 0) > LOADED else ''))
             lines.append(f"| {r['variant']} | {r['preset']} | {r['minutes']:g} min | "
                          f"{_fmt(r.get('chamfer'), '.3f')} | {comp} | {_fmt(r.get('steps'), 'd')} | "
-                         f"{_fmt(r.get('psnr'), '.2f')} | {status} | {pic} |")
+                         f"{_fmt(r.get('psnr'), '.2f')} | {_fmt(r.get('others'), '.0%')} | {status} | {pic} |")
         lines.append('')
     verdicts = criterion(rows)
     if verdicts:
@@ -315,7 +348,7 @@ def main(argv=None) -> None:
         raise SystemExit(f'error: {args.data}: no scenes (folders with a gt.ply)')
     command = 'python bench/quality.py ' + shlex.join(sys.argv[1:] if argv is None else argv)
     t0 = time.time()
-    started = {'date': datetime.date.today().isoformat(), 'load': os.getloadavg()[0],
+    started = {'date': datetime.date.today().isoformat(),
                'machine': f'{platform.processor() or platform.machine()}, {os.cpu_count()} cores'}
     pictures = os.path.join(args.doc, 'quality')
     os.makedirs(pictures, exist_ok=True)
@@ -335,8 +368,7 @@ def main(argv=None) -> None:
                 print(f"{scene} {variant} {preset} {minutes:g} min: {row['status']}, Chamfer "
                       f"{_fmt(row.get('chamfer'), '.3f') or '-'}, components "
                       f"{_fmt(row.get('components'), 'd') or '-'}", flush=True)
-                path = write_doc(rows, args.doc, command, started,
-                                 {'load': os.getloadavg()[0], 'minutes': (time.time() - t0) / 60}, configs)
+                path = write_doc(rows, args.doc, command, started, (time.time() - t0) / 60, configs)
     print(f'wrote {path}')
 
 
