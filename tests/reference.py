@@ -21,7 +21,7 @@ BLOCK_HALF = (0.55, 0.45, 0.5)
 
 def container(ior=1.45, mesh=None, to_world=None):
     """The glass block (Mitsuba's ``cube``: flat faces, rotated and scaled), or the container
-    in the mesh file ``mesh`` (PLY or OBJ) placed by ``to_world``."""
+    in the mesh file ``mesh`` (one Mitsuba reads: PLY or OBJ) placed by ``to_world``."""
     bsdf = {'type': 'dielectric', 'int_ior': ior}
     if mesh is not None:
         from reneus_mi.geometry.container import mesh_type

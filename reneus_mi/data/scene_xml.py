@@ -206,7 +206,7 @@ def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: 
     ``integrator_settings`` become properties of the integrator, typed by
     their Python type (bool, int, float, str). A dataset without a container
     (the paper's "w/o box" data) gives a scene without one. A container file that
-    Mitsuba cannot read (a PLY of quads, Blender's default) is written triangulated
+    Mitsuba cannot read (a PLY of quads, Blender's default; STL or OFF) is written triangulated
     beside the scene (``<scene>_container.ply``; ``overwrite`` replaces an earlier
     one). Nothing is written when anything is wrong.
     """
@@ -215,7 +215,7 @@ def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: 
         raise ReneusError(f"{path}: folder {xml_dir} does not exist")
     container = ds.container
     if container is not None and not mitsuba_reads(container):
-        # Mitsuba reads triangle PLYs only: the scene names a triangulated copy of its own.
+        # Mitsuba reads OBJ and triangle PLYs only: the scene names a triangle PLY of its own.
         container = guards.check_output_file(os.path.splitext(path)[0] + '_container.ply',
                                              inputs=[ds.root, ds.container], overwrite=overwrite,
                                              what='triangulated container')

@@ -35,10 +35,12 @@ import numpy as np
 import trimesh
 
 from reneus_mi.errors import ReneusError
-from reneus_mi.geometry.mesh import load_mesh, mitsuba_mesh, signed_volume
+from reneus_mi.geometry.mesh import MESH_EXTENSIONS, load_mesh, mitsuba_mesh, signed_volume
 
-#: Mesh formats that both trimesh and Mitsuba read.
-CONTAINER_EXTENSIONS = ('.ply', '.obj')
+#: Mitsuba's shape plugin of each mesh format it reads; a container in another format of
+#: :data:`~reneus_mi.geometry.mesh.MESH_EXTENSIONS` (STL, OFF: CAD exports) is handed to
+#: Mitsuba as a triangle PLY (:func:`container_shape`, :func:`~reneus_mi.data.scene_xml.write_scene`).
+MITSUBA_READERS = {'.ply': 'ply', '.obj': 'obj'}
 #: Faces meeting at more than this angle (degrees) form a crease: light sees them flat.
 CREASE_ANGLE = 30.0
 #: Vertices closer than this fraction of the mesh's size are one vertex (welding).
@@ -52,12 +54,14 @@ _SAME_NORMAL = 1e-4
 _RAY_DIRECTIONS = ((0.5366, 0.6104, 0.5826), (-0.7213, 0.2871, 0.6303), (0.1947, -0.8626, 0.4668))
 
 
-def mesh_type(path: str) -> str:
-    """Mitsuba shape plugin name (``ply``/``obj``) for a mesh file, or raise."""
+def mesh_type(path: str) -> str | None:
+    """Mitsuba's shape plugin (``ply``/``obj``) for a mesh file, None for a mesh format
+    Mitsuba does not read (STL, OFF); raise for a file that is no mesh the package reads."""
     ext = os.path.splitext(path)[1].lower()
-    if ext not in CONTAINER_EXTENSIONS:
-        raise ReneusError(f"{path}: expected a mesh file ending in {' or '.join(CONTAINER_EXTENSIONS)}")
-    return ext[1:]
+    if ext not in MESH_EXTENSIONS:
+        raise ReneusError(f"{path}: expected a mesh file ending in {', '.join(MESH_EXTENSIONS[:-1])} "
+                          f"or {MESH_EXTENSIONS[-1]}")
+    return MITSUBA_READERS.get(ext)
 
 
 def bounding_sphere(path: str) -> tuple[np.ndarray, float]:
@@ -139,12 +143,12 @@ def shading_normals(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> mi.Fl
 def container_shape(path: str, bsdf: dict | None = None) -> mi.Mesh:
     """The container file as a Mitsuba mesh: as Mitsuba's own reader loads it (stored
     normals included) where it can; a PLY of polygons, which that reader refuses
-    (Blender's default export), triangulated by trimesh instead (without its normals:
-    :func:`corner_normals` computes them)."""
-    props = {'type': mesh_type(path), 'filename': os.path.abspath(path)}
-    if bsdf is not None:
-        props['bsdf'] = bsdf
+    (Blender's default export), or an STL or OFF file read by trimesh instead (without its
+    normals: :func:`corner_normals` computes them)."""
     if mitsuba_reads(path):
+        props = {'type': mesh_type(path), 'filename': os.path.abspath(path)}
+        if bsdf is not None:
+            props['bsdf'] = bsdf
         return mi.load_dict(props)
     mesh = load_container(path)
     shape = mi.Mesh('container', len(mesh.vertices), len(mesh.faces),
@@ -157,9 +161,12 @@ def container_shape(path: str, bsdf: dict | None = None) -> mi.Mesh:
 
 
 def mitsuba_reads(path: str) -> bool:
-    """Whether Mitsuba's own reader loads the mesh file (it takes triangle PLYs only)."""
+    """Whether Mitsuba's own reader loads the mesh file (OBJ, and PLY of triangles only)."""
+    plugin = mesh_type(path)
+    if plugin is None:
+        return False
     try:
-        mi.load_dict({'type': mesh_type(path), 'filename': os.path.abspath(path)})
+        mi.load_dict({'type': plugin, 'filename': os.path.abspath(path)})
     except RuntimeError:
         return False
     return True

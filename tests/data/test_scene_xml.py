@@ -165,13 +165,20 @@ def test_cli(tmp_path, capsys):
     assert not (tmp_path / 'other.xml').exists()
 
 
-def test_container_mitsuba_cannot_read_gets_a_triangulated_copy(tmp_path):
-    # Blender writes PLY quads, which Mitsuba's PLY reader refuses: the scene names a
-    # triangulated copy beside itself, the same surface, and leaves the dataset alone.
+@pytest.mark.parametrize('kind', ['quads.ply', 'stl', 'off'])
+def test_container_mitsuba_cannot_read_gets_a_triangulated_copy(tmp_path, kind):
+    # Blender writes PLY quads, which Mitsuba's PLY reader refuses, and CAD tools STL or OFF,
+    # which it has no reader for: the scene names a triangle PLY beside itself, the same
+    # surface, and leaves the dataset alone.
     blender = os.path.join(os.path.dirname(__file__), '..', 'fixtures', 'containers', 'blender_cube.ply')
     ds = make_dataset(tmp_path / 'data')
-    with open(blender, 'rb') as src, open(ds.container, 'wb') as dst:
-        dst.write(src.read())
+    if kind == 'quads.ply':
+        with open(blender, 'rb') as src, open(ds.container, 'wb') as dst:
+            dst.write(src.read())
+    else:
+        os.remove(ds.container)
+        ds.container = os.path.splitext(ds.container)[0] + '.' + kind
+        trimesh.load(blender).export(ds.container)
     ds.masks = container_masks(ds.container, ds.K, ds.c2w, H, W)
     before = sorted(os.listdir(tmp_path / 'data' / 'meshes'))
     xml = tmp_path / 'scene.xml'

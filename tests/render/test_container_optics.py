@@ -35,8 +35,11 @@ def _write(folder, name: str, mesh: trimesh.Trimesh, **kwargs) -> str:
     path = os.path.join(folder, name)
     if name.endswith('.ply'):
         data = trimesh.exchange.ply.export_ply(mesh, **kwargs)
-    else:
+    elif name.endswith('.obj'):
         data = trimesh.exchange.obj.export_obj(mesh, **kwargs).encode()
+    else:
+        data = trimesh.exchange.export.export_mesh(mesh, None, **{'file_type': name.rsplit('.', 1)[1], **kwargs})
+        data = data.encode() if isinstance(data, str) else data
     with open(path, 'wb') as f:
         f.write(data)
     return path
@@ -57,6 +60,10 @@ BOXES = {
     'unshared36.ply': lambda d: _write(d, 'unshared36.ply', _unshared()),
     'unshared36_face_normals.ply': lambda d: _write(d, 'unshared36_face_normals.ply', _unshared(),
                                                     vertex_normal=True),
+    # CAD exports: STL stores one normal per face and a vertex per corner; OFF shares them.
+    'shared8.stl': lambda d: _write(d, 'shared8.stl', _box()),
+    'shared8_ascii.stl': lambda d: _write(d, 'shared8_ascii.stl', _box(), file_type='stl_ascii'),
+    'shared8.off': lambda d: _write(d, 'shared8.off', _box()),
     'blender_cube.ply': lambda d: os.path.join(BLENDER, 'blender_cube.ply'),
     'blender_cube_normals.ply': lambda d: os.path.join(BLENDER, 'blender_cube_normals.ply'),
     'blender_cube_binary.ply': lambda d: os.path.join(BLENDER, 'blender_cube_binary.ply'),
