@@ -45,6 +45,8 @@ MITSUBA_READERS = {'.ply': 'ply', '.obj': 'obj'}
 CREASE_ANGLE = 30.0
 #: Vertices closer than this fraction of the mesh's size are one vertex (welding).
 _WELD = 1e-6
+#: Rounding of a cosine between face normals computed from float32 vertices.
+_ANGLE_ROUNDING = 1e-5
 #: A stored normal is the vertex's own when its copies agree this closely (1 - cos).
 _SAME_NORMAL = 1e-4
 
@@ -106,7 +108,10 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
     offset = np.arange(len(a)) - np.repeat(np.cumsum(degree) - degree, degree)
     b = order[np.repeat(start[w[order]], degree) + offset]
     fa, fb = a // 3, b // 3
-    smooth = (np.einsum('pi,pi->p', n_face[fa], n_face[fb]) >= np.cos(np.radians(crease_angle))) | ~solid[fb]
+    # Faces exactly at the crease angle (a 12-sided jar at 30 degrees) are smooth, as in
+    # Blender, whichever way rounding falls at each vertex.
+    cos_crease = np.cos(np.radians(crease_angle)) - _ANGLE_ROUNDING
+    smooth = (np.einsum('pi,pi->p', n_face[fa], n_face[fb]) >= cos_crease) | ~solid[fb]
     mean = np.zeros((3 * len(f), 3))
     np.add.at(mean, a[smooth], weight.ravel()[b[smooth], None] * n_face[fb[smooth]])
     length = np.linalg.norm(mean, axis=1, keepdims=True)
@@ -125,7 +130,7 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
         stored = n[f.ravel()]
         use = (~creased & agree[w]
                & (np.einsum('ci,ci->c', stored, n_face[np.arange(3 * len(f)) // 3])
-                  >= np.cos(np.radians(crease_angle))))
+                  >= cos_crease))
         n_corner[use] = stored[use]
     return n_corner.reshape(-1, 3, 3).astype(np.float32)
 
