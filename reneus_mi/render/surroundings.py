@@ -220,6 +220,25 @@ class Surroundings:
                                          np.array(params['faces']).reshape(-1, 3), process=False))
         return trimesh.util.concatenate(parts)
 
+    def posed_mesh(self):
+        """The container where its pose puts it (as loaded without one), one vertex per
+        triangle corner carrying the normal light is bent by there: written out, the file
+        refracts as this container does (a refined rounded block keeps its smooth normals)."""
+        import trimesh
+        parts = []
+        for shape, table in self.normals.items():
+            params = mi.traverse(shape)
+            corners = np.array(params['vertex_positions']).reshape(-1, 3)[
+                np.array(params['faces']).reshape(-1, 3)].reshape(-1, 3)
+            parts.append((corners, np.array(table).reshape(-1, 3)))
+        x, n = (np.concatenate(a).astype(np.float64) for a in zip(*parts))
+        if self.pose is not None:
+            M = self.pose.matrix()
+            x = x @ M[:3, :3].T + M[:3, 3]
+            n = n @ np.linalg.inv(M[:3, :3])   # normals go by the inverse transpose
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        return trimesh.Trimesh(x, np.arange(len(x)).reshape(-1, 3), vertex_normals=n, process=False)
+
     def params(self) -> dict:
         """The refinable arrays, by their ``mi.traverse`` names (under the integrator)."""
         out = {'container.eta': self.eta}

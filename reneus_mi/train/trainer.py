@@ -336,10 +336,8 @@ class Trainer:
             warnings.warn(f'step {self.iteration}: no mesh snapshot ({e}); training goes on')
 
     def write_container(self, path: str) -> str:
-        """The container mesh at its refined pose, in world coordinates."""
-        mesh = self.surroundings.mesh()
-        mesh.apply_transform(self.surroundings.pose.matrix())
-        write_mesh(mesh, path)
+        """The container mesh at its refined pose, in world coordinates, with its optics."""
+        write_mesh(self.surroundings.posed_mesh(), path)
         return path
 
     def write_mesh(self, path: str, resolution: int | None = None):

@@ -160,3 +160,32 @@ def test_smooth_container_comparison_has_teeth(rounded_block, monkeypatch):
     reneus = reneus_pixels(reneus_scene(24, mesh=rounded_block, max_depth=2, terminal='black'))
     # The tolerance of test_smooth_container_matches_path_tracer: facets fail it.
     assert np.abs(reneus - mean).mean() > SMOOTH_TOL
+
+
+@pytest.mark.parametrize('container', ['rounded', 'box8'])
+def test_refined_container_file_keeps_its_optics(rounded_block, tmp_path, container):
+    """The refined container is written where its pose puts it with the normals light was
+    bent by: read back, its shading normals are the posed ones (before: the rounded block
+    lost its stored normals)."""
+    from reneus_mi.geometry.container import container_shape, shading_normals
+    from reneus_mi.geometry.mesh import write_mesh
+    from reneus_mi.render.surroundings import Surroundings
+    path = rounded_block
+    if container == 'box8':
+        path = str(tmp_path / 'box8.ply')
+        trimesh.creation.box(extents=(1.1, 0.9, 1.0)).export(path)
+    shape = container_shape(path)
+    surroundings = Surroundings(1.45, [shape], _constant(), pose=True, pivot=(0.1, 0.2, -0.1))
+    surroundings.pose = _pose()
+    written = str(tmp_path / 'refined.ply')
+    write_mesh(surroundings.posed_mesh(), written)
+    back = container_shape(written)
+    got = np.array(shading_normals(back)).reshape(-1, 3)
+    params = mi.traverse(shape)
+    corners = np.array(params['vertex_positions']).reshape(-1, 3)[np.array(params['faces']).reshape(-1)]
+    n = mi.Vector3f(*(mi.Float(a) for a in np.array(shading_normals(shape)).reshape(-1, 3).T))
+    expected = np.array(surroundings.pose.normal_to_world(n)).T
+    x = mi.Point3f(*(mi.Float(a) for a in corners.T.astype(np.float32)))
+    assert np.abs(np.array(mi.traverse(back)['vertex_positions']).reshape(-1, 3)
+                  - np.array(surroundings.pose.to_world(x)).T).max() < 1e-5
+    assert np.abs(got - expected).max() < 1e-4
