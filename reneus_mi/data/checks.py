@@ -14,7 +14,9 @@ which is the one thing of the scene known in world coordinates:
 - a mask read from a file agrees with the container's projection (IoU at
   least :data:`MIN_MASK_IOU`), which catches a view paired with another's
   camera, and does not cover the whole image where the container does not
-  (an opaque alpha channel).
+  (an opaque alpha channel);
+- the container file is not written with y up (the default of Blender's exporters)
+  for cameras with z up: the masks would fit it loosely, and it would refract wrongly.
 
 Messages name the image file, the view and what was expected.
 """
@@ -31,6 +33,9 @@ FRAME_MARGIN = 0.25
 MIN_EXTENT = 0.02
 #: Smallest intersection-over-union of a given mask and the container's projection.
 MIN_MASK_IOU = 0.5
+#: Below this mean IoU of the masks and the container's projection the container is also
+#: tried turned from y up to z up; it is refused when that fits better by AXES_MARGIN.
+AXES_CHECKED_BELOW, AXES_MARGIN = 0.99, 0.02
 #: Pixels per view traced for the mask comparison (a regular subset of the image).
 MASK_SAMPLES = 1 << 16
 #: Accepted range of the container's index of refraction (glass ~1.5, diamond 2.42).
@@ -47,12 +52,14 @@ def check_ior(ior, where: str) -> float:
 
 
 def check_views(container, K: np.ndarray, c2w: np.ndarray, height: int, width: int,
-                files: list[str], given_masks: dict[int, np.ndarray], mask_sources=None) -> None:
+                files: list[str], given_masks: dict[int, np.ndarray], mask_sources=None,
+                name: str = 'container mesh') -> None:
     """Raise naming the first view whose camera does not see ``container`` (a trimesh).
 
     ``files`` name the views; ``given_masks`` maps view indices to masks read
     from files (computed ones agree by construction); ``mask_sources[v]`` says
-    where view ``v``'s mask was read ('from its alpha channel', 'from FILE').
+    where view ``v``'s mask was read ('from its alpha channel', 'from FILE'); ``name`` names
+    the container in messages.
     """
     from reneus_mi.geometry.container import inside
     vertices = np.asarray(container.vertices, dtype=np.float64)
@@ -85,20 +92,35 @@ def check_views(container, K: np.ndarray, c2w: np.ndarray, height: int, width: i
                 f"(radius {radius:.3g} at distance {np.linalg.norm(p):.3g}); expected at least "
                 f"{MIN_EXTENT:.0%} of the image: is the container mesh in the cameras' units?")
     if given_masks:
-        _check_masks(container, K, c2w, height, width, files, given_masks, mask_sources)
+        _check_masks(container, K, c2w, height, width, files, given_masks, mask_sources, name)
 
 
-def _check_masks(container, K, c2w, height, width, files, given_masks, sources) -> None:
+#: A file written with y up (Blender's OBJ and PLY exporters by default: forward -z, up y)
+#: taken into a world with z up: (x, y, z) -> (x, -z, y).
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    union = np.sum(a | b)
+    return np.sum(a & b) / union if union else 1.0
+
+
+def _check_masks(container, K, c2w, height, width, files, given_masks, sources, name) -> None:
     import mitsuba as mi
     from reneus_mi.geometry.mesh import mitsuba_mesh
     scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container)})
     stride = max(1, int(np.ceil(np.sqrt(height * width / MASK_SAMPLES))))
     ys, xs = np.mgrid[0:height:stride, 0:width:stride]
     px = np.stack([xs.ravel(), ys.ravel()], axis=1)
-    for v, mask in given_masks.items():
+
+    def project(scene, v):
         o, d = pixel_rays(K, c2w, v, px)
         ray = mi.Ray3f(mi.Point3f(*o.T.astype(np.float32)), mi.Vector3f(*d.T.astype(np.float32)))
-        projected = np.array(scene.ray_test(ray)).reshape(ys.shape)
+        return np.array(scene.ray_test(ray)).reshape(ys.shape)
+
+    ious = {}
+    for v, mask in given_masks.items():
+        projected = project(scene, v)
         given = mask[::stride, ::stride]
         source = f' {sources[v]}' if sources else ''
         if given.all() and not projected.all():
@@ -107,9 +129,25 @@ def _check_masks(container, K, c2w, height, width, files, given_masks, sources) 
                 f"covers {projected.mean():.0%} of it; expected the container's pixels only (an opaque "
                 "alpha channel is a mask of everything: save the photographs without alpha, and the "
                 "container's projection is the mask)")
-        union = np.sum(projected | given)
-        iou = np.sum(projected & given) / union if union else 1.0
+        ious[v] = _iou(projected, given)
+    mean = float(np.mean(list(ious.values())))
+    if mean < AXES_CHECKED_BELOW:
+        # A container file written with y up fits the masks of a z-up world loosely (a block is
+        # a block from most sides) and would refract wrongly without a word: the axes are
+        # named where the turned file fits clearly better.
+        turned = container.copy()
+        turned.vertices = turned.vertices @ Y_UP_TO_Z_UP.T
+        turned_scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(turned)})
+        fit = float(np.mean([_iou(project(turned_scene, v), m[::stride, ::stride]) for v, m in given_masks.items()]))
+        if fit > mean + AXES_MARGIN:
+            raise ReneusError(
+                f"{name}: the masks overlap the container's projection by mean IoU {mean:.2f}, and by "
+                f"{fit:.2f} with the mesh turned from y up to z up: its file was written with y up "
+                "(Blender's OBJ and PLY export default); expected the cameras' axes: export it with up "
+                "axis Z and forward axis Y")
+    for v, iou in ious.items():
         if iou < MIN_MASK_IOU:
+            source = f' {sources[v]}' if sources else ''
             raise ReneusError(
                 f"{files[v]}: view {v}: the mask{source} overlaps the container's projection by IoU "
                 f"{iou:.2f}; expected at least {MIN_MASK_IOU} (is this image paired with another "

@@ -308,10 +308,10 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
                              f"expected the image size {width}x{height}")
     if container is None and need_container:
         raise ReneusError(f"{meta_file}: dataset has no container mesh "
-                         "(expected a 'mesh_outside' entry naming a .ply/.obj file)")
+                         "(expected a 'mesh_outside' entry naming its mesh file)")
     if container is not None:
         check_views(load_container(container), np.asarray(K), np.asarray(c2w), height, width,
-                    files, {i: m for i, m in enumerate(masks) if m is not None}, mask_sources)
+                    files, {i: m for i, m in enumerate(masks) if m is not None}, mask_sources, name=container)
     missing = [i for i, m in enumerate(masks) if m is None]
     if missing:
         if container is not None:

@@ -456,3 +456,17 @@ def test_max_size_reduces_photographs_and_cameras_alike(written, fmt):
     (o0, d0), (o1, d1) = full.rays(view, 2 * px + 0.5), half.rays(view, px)
     assert np.abs(o1 - o0).max() < 1e-9 and np.abs(d1 - d0).max() < 1e-9
     assert dataset_fingerprint(half)['width'] == W // 2
+
+
+def test_container_written_with_y_up_is_named(written, tmp_path):
+    # Blender's OBJ and PLY exporters write y up by default, while its cameras (and so
+    # transforms.json) keep z up: the masks then disagree, and the message says why.
+    from reneus_mi.data.checks import Y_UP_TO_Z_UP
+    folder = mutable(written, tmp_path, 'blender')
+    box = trimesh.load(folder / 'container.ply', process=False)
+    box.vertices = box.vertices @ Y_UP_TO_Z_UP       # world -> the file's y-up coordinates
+    box.export(folder / 'container.ply')
+    with pytest.raises(ValueError, match=r"container.ply: the masks overlap the container's projection by "
+                                         r"mean IoU 0.\d\d, and by 0.9\d with the mesh turned from y up to z up: "
+                                         r"its file was written with y up"):
+        load_dataset(str(folder))
