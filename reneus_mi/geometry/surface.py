@@ -26,9 +26,11 @@ POSTPROCESS_MODES = ('clean', 'largest', 'crop', 'none')
 #: :func:`clean` keeps components this many median edge lengths (about two marching-cubes
 #: cells) from the kept surface ...
 CLEAN_GAP = 4.0
-#: ... and components with at least this share of the largest one's area; specks under
-#: CLEAN_SPECK of it go even next to the body (a few dozen faces of noise, no part).
-CLEAN_SHARE, CLEAN_SPECK = 0.1, 1e-3
+#: ... and components with at least this share of the largest one's area, wherever they lie
+#: (a bud whose thin stalk was lost: 2-4 % on the Blender sprig, whose floaters in ten runs
+#: of bench/quality.py were at most 0.2 %); specks under CLEAN_SPECK of it go even next to
+#: the body (a few dozen faces of noise, no part).
+CLEAN_SHARE, CLEAN_SPECK = 0.01, 1e-3
 #: Bytes per grid point of marching cubes: the float32 SDF grid, skimage's
 #: working copies, the vertices and faces. Measured (peak RSS, a sphere,
 #: resolution 64 -> 384): 4.9; doubled and more for surfaces with more faces.

@@ -91,8 +91,8 @@ def test_crop_removes_what_lies_outside_the_container():
 
 
 def _body_with_fragments():
-    """A body, a leg that noise cut into two pieces beside it, a second real part, a floater
-    and a speck of noise on the body's skin."""
+    """A body, a leg that noise cut into two pieces beside it, a second real part, a bud whose
+    stalk was lost, a floater and a speck of noise on the body's skin."""
     body = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
     upper = trimesh.creation.cylinder(radius=0.03, height=0.3, sections=16)
     upper.apply_translation((0.0, 0.0, -0.665))           # 0.01 below the body
@@ -100,20 +100,23 @@ def _body_with_fragments():
     lower.apply_translation((0.0, 0.0, -0.31))            # 0.01 below the upper piece
     second = trimesh.creation.icosphere(subdivisions=3, radius=0.25)
     second.apply_translation((0.0, 1.2, 0.0))             # far, but a real part
+    bud = trimesh.creation.icosphere(subdivisions=2, radius=0.08)
+    bud.apply_translation((-0.9, 0.0, 0.0))               # 0.32 from the body, 2.6 % of its area
     floater = trimesh.creation.icosphere(subdivisions=1, radius=0.02)
     floater.apply_translation((0.7, 0.7, 0.0))            # 0.49 from the body
     speck = trimesh.creation.icosphere(subdivisions=1, radius=0.005)
     speck.apply_translation((0.51, 0.0, 0.0))             # on the body, 1e-4 of its area
-    return trimesh.util.concatenate([body, upper, lower, second, floater, speck])
+    return trimesh.util.concatenate([body, upper, lower, second, bud, floater, speck])
 
 
 def test_clean_drops_floaters_and_keeps_cut_off_parts():
     from reneus_mi.geometry.surface import components
     mesh = _body_with_fragments()
-    assert components(mesh) == 6
+    assert components(mesh) == 7
     kept = postprocess(mesh, 'clean')
-    assert components(kept) == 4
+    assert components(kept) == 5
     assert kept.bounds[0][2] < -0.97                           # the leg's lower piece is there
+    assert kept.bounds[0][0] < -0.97                           # and the bud
     assert not np.any(np.linalg.norm(kept.vertices - (0.7, 0.7, 0.0), axis=1) < 0.05)
     assert not np.any(np.linalg.norm(kept.vertices - (0.51, 0.0, 0.0), axis=1) < 0.01)
     # The paper's rule keeps the body alone.
@@ -124,7 +127,7 @@ def test_components_counts_pieces_of_a_per_face_mesh():
     from reneus_mi.geometry.surface import components
     soup = _body_with_fragments()
     soup.unmerge_vertices()
-    assert components(soup) == 6 and components(trimesh.Trimesh()) == 0
+    assert components(soup) == 7 and components(trimesh.Trimesh()) == 0
 
 
 class _FacingField(SphereField):
