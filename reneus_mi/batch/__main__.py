@@ -85,10 +85,7 @@ def run(args) -> dict[str, RunState]:
                                    minutes=args.time, ray_address=args.ray_address, partition=args.partition,
                                    max_parallel=args.max_parallel, slurm_folder=BatchFolder(args.output).slurm)
     say = (lambda _: None) if args.quiet else functools.partial(print, flush=True)
-    try:
-        return run_batch(specimens, args.output, make, redo=args.redo, say=say)
-    except KeyboardInterrupt:
-        raise SystemExit('interrupted: checkpoints written; run the same command again to continue') from None
+    return run_batch(specimens, args.output, make, redo=args.redo, say=say)
 
 
 if __name__ == '__main__':

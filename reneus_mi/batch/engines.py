@@ -34,6 +34,7 @@ import sys
 import time
 from dataclasses import dataclass
 
+from reneus_mi import interrupt
 from reneus_mi.errors import ReneusError
 
 ENGINES = ('local', 'ray', 'slurm')
@@ -136,15 +137,23 @@ class Engine:
     def describe(self) -> str:
         raise NotImplementedError
 
-    def close(self) -> None:
-        pass
+    on_interrupt = 'the runs were stopped'
+    """What Ctrl-C in the batch does to the runs out (the interrupted batch's last line)."""
+
+    def close(self) -> list[tuple[dict, dict]]:
+        """Stop, as Ctrl-C would, what is still out; (task, outcome) of the tasks that ended
+        in doing so (an outcome ``interrupted``: the run keeps its last checkpoint)."""
+        return []
 
 
 class LocalPool(Engine):
     """Worker processes on this machine (``python -m reneus_mi.batch.worker``), ``workers`` at
     a time, each with ``threads`` Dr.Jit threads or one of ``gpus``. A process per run: a
-    run's memory goes back when it ends, and a crash takes one specimen down, not the pool."""
+    run's memory goes back when it ends, and a crash takes one specimen down, not the pool.
+    The workers run in sessions of their own, so that a terminal's Ctrl-C reaches the batch
+    alone and each worker gets exactly one from it (a second would cut its checkpoint)."""
     name = 'local'
+    on_interrupt = 'each run wrote its checkpoint and stopped'
 
     def __init__(self, files_of, *, workers: int, threads: int, gpus: list[str] = ()):
         self.files_of, self.workers, self.threads, self.gpus = files_of, workers, threads, list(gpus)
@@ -164,7 +173,8 @@ class LocalPool(Engine):
             os.makedirs(files.path, exist_ok=True)
             with open(files.worker_log, 'ab') as log:
                 proc = subprocess.Popen([sys.executable, '-m', 'reneus_mi.batch.worker', json.dumps(task)],
-                                        stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env)
+                                        stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                        start_new_session=True)
             self.slots[slot] = (proc, task, time.perf_counter())
 
     def wait(self, timeout: float) -> list[tuple[dict, dict]]:
@@ -183,6 +193,8 @@ class LocalPool(Engine):
                     outcome = {'outcome': 'ended', 'seconds': seconds}
                 elif code == EXIT_BUSY:
                     outcome = {'outcome': 'busy', 'reason': 'in use by another process', 'seconds': seconds}
+                elif code == interrupt.STATUS:
+                    outcome = {'outcome': 'interrupted', 'seconds': seconds}
                 elif code < 0:
                     outcome = {'outcome': 'died', 'seconds': seconds,
                                'reason': f'worker killed by {signal.Signals(-code).name}'}
@@ -201,8 +213,8 @@ class LocalPool(Engine):
         each = f'GPU {", ".join(self.gpus)}' if self.gpus else f'{self.threads} thread(s) each'
         return f'local pool of {self.workers} worker(s), {each}'
 
-    def close(self) -> None:
-        """Stop the workers still running as Ctrl-C would (each writes its checkpoint first)."""
+    def close(self) -> list[tuple[dict, dict]]:
+        """Ctrl-C to each worker still running (it writes its checkpoint, then ends)."""
         for proc, _, _ in self.slots.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
@@ -211,6 +223,7 @@ class LocalPool(Engine):
                 proc.wait()
             except KeyboardInterrupt:
                 proc.kill()
+        return self.wait(0.0)
 
 
 class RayEngine(Engine):
@@ -277,11 +290,14 @@ class RayEngine(Engine):
         return (f"Ray ({total.get('CPU', 0):g} CPUs, {total.get('GPU', 0):g} GPUs), "
                 f'{self.res.cpus} CPU(s) and {self.res.gpus} GPU(s) per run')
 
-    def close(self) -> None:
+    on_interrupt = 'the runs were cancelled (each keeps its last checkpoint)'
+
+    def close(self) -> list[tuple[dict, dict]]:
         for ref in list(self.refs):
             self.ray.cancel(ref)
         if self.started:
             self.ray.shutdown()
+        return []
 
 
 def _ray_death(ray, e) -> str:
@@ -350,8 +366,11 @@ class SlurmEngine(Engine):
         return (f'{self.executor.cluster} job array, {self.res.cpus} CPU(s), {self.res.gpus} GPU(s), '
                 f'{self.res.mem_gb:g} GiB, {self.res.minutes} min per run')
 
-    def close(self) -> None:
+    on_interrupt = 'the Slurm jobs go on without the batch'
+
+    def close(self) -> list[tuple[dict, dict]]:
         """Jobs go on without the batch (their runs are locked): the next batch follows them."""
+        return []
 
 
 def one_line_of(e: BaseException) -> str:

@@ -15,7 +15,9 @@ running       leaves it: another process drives it (its lock)
 
 It hands the runs to the engine, records a worker's death in its run
 (``failed``, with the reason: the next batch resumes it), rewrites the summary
-whenever a run ends and prints a progress line.
+whenever a run ends and prints a progress line. Ctrl-C is passed on to the engine
+(:attr:`~reneus_mi.batch.engines.Engine.on_interrupt` says what that does: the local
+workers checkpoint and stop); the summary is written and the batch ends with one line.
 """
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ import os
 import time
 from typing import Callable
 
-from reneus_mi import guards
+from reneus_mi import guards, interrupt
 from reneus_mi.batch import summary
 from reneus_mi.batch.collection import Specimen
 from reneus_mi.batch.folder import RESERVED, BatchFolder
@@ -34,6 +36,8 @@ from reneus_mi.train.run_folder import RunState
 
 #: Seconds between progress lines while nothing ends.
 HEARTBEAT = 60.0
+#: Seconds between looks at the engine: how long a Ctrl-C waits to be passed on.
+TICK = 0.5
 
 
 def check_folder(root: str, specimens: list[Specimen]) -> BatchFolder:
@@ -96,34 +100,39 @@ def _drive(batch, specimens, make_engine, redo, say) -> dict[str, str]:
     started, ended = time.monotonic(), 0
     tasks = [{'specimen': s.to_dict(), 'root': batch.path, 'threads': engine.threads,
               'variant': engine.variant, 'redo': s.name in redo, 'engine': engine.name} for s in todo]
-    try:
-        while tasks or engine.running():
+
+    def settle(done):
+        nonlocal ended
+        for task, outcome in done:
+            name = task['specimen']['name']
+            counts['running'] -= 1
+            state = _settle(batch, name, outcome, engine.name)
+            counts[state.name if state.name in ('finished', 'failed') else
+                   'busy' if state.name == 'running' else 'left'] += 1
+            ended += 1
+            say(f'{name}: {state}')
+        if done:
+            summary.write(batch, specimens)
+
+    interrupt.leaving(f'{engine.on_interrupt}; run the same command again to continue')
+    # While runs are out, Ctrl-C is the engine's to pass on (the runs' checkpoints); with
+    # none out it ends the batch at once.
+    with interrupt.deferred(unsaved=engine.running) as interrupted:
+        heard = time.monotonic()
+        while (tasks or engine.running()) and not interrupted():
             free = engine.free()
             taken, tasks = tasks[:free], tasks[free:]
             engine.submit(taken)
             counts['left'] -= len(taken)
             counts['running'] += len(taken)
-            if taken:
+            done = engine.wait(TICK)
+            settle(done)
+            if taken or done or time.monotonic() - heard >= HEARTBEAT:
                 say(summary.progress_line(counts, started, ended))
-            done = engine.wait(HEARTBEAT)
-            for task, outcome in done:
-                name = task['specimen']['name']
-                counts['running'] -= 1
-                state = _settle(batch, name, outcome, engine.name)
-                counts[state.name if state.name in ('finished', 'failed') else
-                       'busy' if state.name == 'running' else 'left'] += 1
-                ended += 1
-                say(f'{name}: {state}')
-            if done:
-                summary.write(batch, specimens)
-            say(summary.progress_line(counts, started, ended))
-    except KeyboardInterrupt:
-        say('interrupted: the runs write their checkpoints; run the batch again to continue')
-        engine.close()
-        summary.write(batch, specimens)
-        raise
-    engine.close()
-    summary.write(batch, specimens)
+                heard = time.monotonic()
+        settle(engine.close())
+        if interrupted():
+            raise KeyboardInterrupt
     return _states(batch, specimens)
 
 

@@ -180,6 +180,43 @@ def test_a_killed_worker_is_resumed_exactly(collection, tmp_path):
     assert [a['outcome'] for a in attempts] == ['failed', 'finished'] and attempts[0]['reason'] == reason
 
 
+@pytest.mark.parametrize('to', ['batch', 'group'])
+def test_ctrl_c_stops_the_batch_and_its_runs_resumably(collection, tmp_path, to):
+    """SIGINT to the batch alone (kill -INT) or to its process group (a terminal's Ctrl-C):
+    the batch ends promptly with one line and status 130, its worker writes its checkpoint
+    and stops (none is left running), the run is resumable, not failed, and the next batch
+    finishes it from there. Harmful before: the batch ended at once and left its worker
+    running, holding the run."""
+    manifest = _manifest(tmp_path, collection, [dict(name='a', data='a', **LONG)])
+    runs = tmp_path / 'runs'
+    proc = subprocess.Popen([sys.executable, '-m', 'reneus_mi.batch', manifest, '-o', str(runs), '--preset', 'tiny',
+                             '--workers', '1', '--threads', '1'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    log = runs / 'a' / 'log.jsonl'
+    _wait_for(lambda: log.is_file() and len(log.read_text().splitlines()) >= 5, what='five steps')
+    worker = int((runs / 'a' / '.lock').read_text().split()[0])
+    if to == 'batch':
+        proc.send_signal(signal.SIGINT)
+    else:
+        os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, (out, err)
+    assert err.strip().splitlines() == ['interrupted: each run wrote its checkpoint and stopped; run the same '
+                                        'command again to continue'], err
+    _wait_for(lambda: not os.path.exists(f'/proc/{worker}') or
+              open(f'/proc/{worker}/stat').read().split()[2] == 'Z', timeout=5, what='the worker to end')
+    from reneus_mi.train.run_folder import RunFolder
+    state = RunFolder(runs / 'a').state()
+    assert state.name == 'resumable', state
+    assert _summary(runs)[0]['state'] == 'resumable'
+    step = len(log.read_text().splitlines())
+    assert 5 <= step < 40 and not BatchFolder(runs).specimen('a').read_attempts()
+    out, err = _batch_process(manifest, runs).communicate(timeout=120)
+    assert 'a: finished' in out, (out, err)
+    lines = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [e['iteration'] for e in lines] == list(range(1, 41))
+
+
 _HOLD = """
 import sys, time
 from reneus_mi.train.run_folder import RunFolder
