@@ -2,7 +2,7 @@
 
     python bench/quality.py [--data /work/data/blender_set] [--scenes stool knot]
                             [--variants box nobox] [--configs fast:2,5,10 small:10]
-                            [--runs runs/quality] [--doc docs] [--fresh]
+                            [--runs runs/quality] [--doc docs] [--fresh | --remesh]
 
 The data are the Blender Cycles set of ``bench/blender_set.py`` (``DATA/SCENE/box/``,
 ``nobox/``, the ground truth ``DATA/SCENE/gt.ply`` outside both). For each scene, variant
@@ -19,7 +19,8 @@ another rule of evaluate's with ``--postprocess``) and the connected components 
 share of the CPU other processes took during each row) and ``DOC/quality/SCENE_VARIANT_PRESET_Mmin.png``: the mesh beside the
 ground truth, rendered by Mitsuba from the same camera. A run that fails or is skipped is
 a row with its reason. Finished runs (an ``evaluate.json``) are read back, so a killed
-benchmark continues where it stopped; ``--fresh`` runs everything again. A smoke run:
+benchmark continues where it stopped; ``--fresh`` runs everything again, ``--remesh`` meshes
+and evaluates the finished runs again (a change of the clean-up, measured without training). A smoke run:
 ``--scenes stool --configs fast:0.3 --doc /tmp/quality``.
 """
 from __future__ import annotations
@@ -123,7 +124,7 @@ def count_components(mesh_path: str) -> int:
 
 
 def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str, minutes: float,
-            fresh: bool, postprocess: str | None) -> dict:
+            fresh: bool, postprocess: str | None, remesh: bool = False) -> dict:
     """One row: scene file, run, evaluation (or the reason there is none)."""
     row = {'scene': scene, 'variant': variant, 'preset': preset, 'minutes': minutes}
     folder = os.path.join(runs, scene, variant)
@@ -139,6 +140,17 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
         if os.path.isfile(machine):
             with open(machine) as f:
                 row.update(json.load(f))
+        if remesh:
+            with open(os.path.join(run, 'config.json')) as f:
+                resolution = json.load(f)['train']['mesh_resolution']
+            with open(os.path.join(folder, f'{_tag(preset, minutes)}.log'), 'a') as log:
+                for cmd in ([sys.executable, '-m', 'reneus_mi.extract', os.path.join(run, 'checkpoint.npz'), '-o',
+                             os.path.join(run, 'mesh.ply'), '--resolution', str(resolution), '--overwrite'],
+                            _evaluate(run, gt, evaluation, postprocess)):
+                    failure = _run(cmd, log, GRACE_S)
+                    if failure:
+                        return {**row, 'status': f'failed: {failure}', **_read(run, None)}
+            row['remeshed'] = True
         return {**row, **_read(run, evaluation), 'reused': True}
     if os.path.exists(run):
         # A run of this benchmark that did not finish (or --fresh): its folder is ours.
@@ -149,8 +161,7 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
     with open(os.path.join(folder, f'{_tag(preset, minutes)}.log'), 'w') as log:
         steps = [[py, '-m', 'reneus_mi.scene', data, '-o', xml, '--preset', preset, '--overwrite'],
                  [py, '-m', 'reneus_mi.optimize', xml, '-o', run, '--max-minutes', f'{minutes:g}', '--quiet'],
-                 [py, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation,
-                  *(['--postprocess', postprocess] if postprocess else [])]]
+                 _evaluate(run, gt, evaluation, postprocess)]
         timeouts = [GRACE_S, 60 * minutes + GRACE_S, GRACE_S]
         start, busy, own = time.perf_counter(), busy_seconds(), children_seconds()
         for cmd, timeout in zip(steps, timeouts):
@@ -169,6 +180,11 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
     if 'status' in row:
         return {**row, **_read(run, None)}
     return {**row, **_read(run, evaluation)}
+
+
+def _evaluate(run: str, gt: str, evaluation: str, postprocess: str | None) -> list[str]:
+    return [sys.executable, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation,
+            '--overwrite', *(['--postprocess', postprocess] if postprocess else [])]
 
 
 def _read(run: str, evaluation: str | None) -> dict:
@@ -280,7 +296,8 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
         for r in (r for r in rows if r['scene'] == scene):
             pic = f"[png]({r['picture']})" if r.get('picture') else ''
             comp = _fmt(r.get('components'), 'd')
-            status = (r['status'] + (' (earlier run)' if r.get('reused') else '')
+            status = (r['status'] + (' (earlier run' + (', meshed again' if r.get('remeshed') else '') + ')'
+                                     if r.get('reused') else '')
                       + (', **loaded machine**' if r.get('others', 0) > LOADED else ''))
             lines.append(f"| {r['variant']} | {r['preset']} | {r['minutes']:g} min | "
                          f"{_fmt(r.get('chamfer'), '.3f')} | {comp} | {_fmt(r.get('steps'), 'd')} | "
@@ -338,6 +355,9 @@ def main(argv=None) -> None:
                         help="evaluate's --postprocess (default: %(default)s: the run's mesh.ply as the run "
                              "cleaned it)")
     parser.add_argument('--fresh', action='store_true', help='run again what an earlier run finished')
+    parser.add_argument('--remesh', action='store_true',
+                        help="mesh the finished runs' checkpoints again with the current code (as the run "
+                             'would: its resolution, the default clean-up) and evaluate them, without training')
     args = parser.parse_args(argv)
     configs = parse_configs(args.configs)
     if not os.path.isdir(args.data):
@@ -358,7 +378,7 @@ def main(argv=None) -> None:
         for variant in args.variants:
             for preset, minutes in configs:
                 row = run_one(os.path.join(args.data, scene, variant), gt, args.runs, scene, variant,
-                              preset, minutes, args.fresh, args.postprocess)
+                              preset, minutes, args.fresh, args.postprocess, args.remesh)
                 mesh = os.path.join(row['run'], 'mesh.ply')
                 if os.path.isfile(mesh):
                     name = f"{scene}_{variant}_{_tag(preset, minutes)}.png"
