@@ -138,7 +138,8 @@ def _check_masks(container, K, c2w, height, width, files, given_masks, sources, 
         turned = container.copy()
         turned.vertices = turned.vertices @ Y_UP_TO_Z_UP.T
         turned_scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(turned)})
-        fit = float(np.mean([_iou(project(turned_scene, v), m[::stride, ::stride]) for v, m in given_masks.items()]))
+        fit = float(np.mean([_iou(project(turned_scene, v), m[::stride, ::stride])
+                             for v, m in given_masks.items()]))
         if fit > mean + AXES_MARGIN:
             raise ReneusError(
                 f"{name}: the masks overlap the container's projection by mean IoU {mean:.2f}, and by "
