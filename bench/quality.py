@@ -18,7 +18,10 @@ another rule of evaluate's with ``--postprocess``) and the connected components 
 (:func:`reneus_mi.geometry.surface.components`). Every budget is a separate run. It writes ``DOC/quality.md`` (one table per scene, the command, the date, the
 share of the CPU other processes took during each row) and ``DOC/quality/SCENE_VARIANT_PRESET_Mmin.png``: the mesh beside the
 ground truth, rendered by Mitsuba from the same camera. A run that fails or is skipped is
-a row with its reason. Finished runs (an ``evaluate.json``) are read back, so a killed
+a row with its reason. Every row is also kept in ``DOC/quality.json`` with its date, commit and
+machine: rows that an invocation does not run stay in the document as they were measured, so
+that the whole table (hours on a CPU) can be filled over several sittings and machines.
+Finished runs (an ``evaluate.json``) are read back, so a killed
 benchmark continues where it stopped; ``--fresh`` runs everything again, ``--remesh`` meshes
 and evaluates the finished runs again (a change of the clean-up, measured without training). A smoke run:
 ``--scenes stool --configs fast:0.3 --doc /tmp/quality``.
@@ -53,6 +56,10 @@ GRACE_S = 900
 #: Share of the machine's CPU taken by other processes above which a row is marked as run on
 #: a loaded machine.
 LOADED = 0.1
+#: What a row keeps in DOC/quality.json (the run folder is this machine's, not kept).
+RECORDED = ('scene', 'variant', 'preset', 'minutes', 'chamfer', 'fscore', 'postprocess', 'components',
+            'steps', 'train_s', 'psnr', 'wall_s', 'others', 'status', 'reused', 'remeshed', 'picture',
+            'date', 'commit', 'machine')
 
 
 def parse_configs(items) -> list[tuple[str, float]]:
@@ -262,22 +269,65 @@ def picture(mesh_path: str, gt_path: str, out: str) -> None:
     os.replace(tmp, out)
 
 
+# --- the record -----------------------------------------------------------------------------
+
+def _key(row: dict) -> tuple:
+    return row['scene'], row['variant'], row['preset'], float(row['minutes'])
+
+
+def read_record(doc: str) -> list[dict]:
+    """The rows of earlier invocations (DOC/quality.json), or none."""
+    path = os.path.join(doc, 'quality.json')
+    if not os.path.isfile(path):
+        return []
+    with open(path) as f:
+        return json.load(f)['rows']
+
+
+def merge(earlier: list[dict], rows: list[dict], scenes: list[str]) -> list[dict]:
+    """This invocation's rows, and the earlier rows it did not run; ordered by scene (this
+    invocation's order, then the others'), variant (box, nobox, then the rest), preset, budget."""
+    ran = {_key(r) for r in rows}
+    merged = [r for r in earlier if _key(r) not in ran] + rows
+    order = {s: i for i, s in enumerate(dict.fromkeys(scenes + [r['scene'] for r in merged]))}
+    variants = {'box': 0, 'nobox': 1}
+    return sorted(merged, key=lambda r: (order[r['scene']], variants.get(r['variant'], 2), r['variant'],
+                                         r['preset'], float(r['minutes'])))
+
+
+def write_record(rows: list[dict], doc: str) -> None:
+    path = os.path.join(doc, 'quality.json')
+    with open(path + '.tmp', 'w') as f:
+        json.dump({'rows': [{k: r[k] for k in RECORDED if r.get(k) is not None} for r in rows]}, f, indent=1)
+    os.replace(path + '.tmp', path)
+
+
+def commit() -> str:
+    """The commit the benchmark runs at, with ``+`` when the working tree differs from it."""
+    def git(*args):
+        return subprocess.run(['git', '-C', ROOT, *args], capture_output=True, text=True).stdout.strip()
+    head = git('rev-parse', '--short', 'HEAD') or 'unknown'
+    return head + ('+' if git('status', '--porcelain', '--untracked-files=no') else '')
+
+
 # --- the document ---------------------------------------------------------------------------
 
 def _fmt(value, spec: str) -> str:
     return '' if value is None or value != value else format(value, spec)
 
 
-def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: float,
-              configs: list[tuple[str, float]]) -> str:
-    smoke = max(m for _, m in configs) < 2
+def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: float) -> str:
+    smoke = any(float(r['minutes']) < 2 for r in rows)
+    machines = ' and '.join(dict.fromkeys(r.get('machine') or started['machine'] for r in rows))
     lines = ['# Reconstruction quality on a second renderer\'s photographs', '',
-             f'Written by `{command}` on {started["date"]} ({minutes:.0f} min).', '',
-             f'Machine: {started["machine"]}. Column "others": the share of the machine\'s CPU that '
+             f'Written by `{command}` on {started["date"]} ({minutes:.0f} min). Rows it did not run are '
+             'kept from earlier invocations (`quality.json`); column "ran" says when and at which commit '
+             'each row ran.', '',
+             f'Machine: {machines}. Column "others": the share of the machine\'s CPU that '
              f'other processes took while the row ran; a row above {LOADED:.0%} ran on a **loaded '
              'machine** and is marked so (blank: not measured).', '']
     if smoke:
-        lines += ['**A smoke run**: budgets under 2 minutes say nothing about quality.', '']
+        lines += ['**Smoke rows**: budgets under 2 minutes say nothing about quality.', '']
     lines += ['Data: `bench/blender_set.py` (Blender Cycles, a glass block IOR 1.45 exported by '
               "Blender itself, constant world 0.8, 48 views at 128 px; each scene's `scene.json` "
               'says how its block file was written). Each row is the README\'s path, in subprocesses: '
@@ -291,8 +341,8 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
               'Pictures: the mesh (left) beside the ground truth (right).', '']
     for scene in dict.fromkeys(r['scene'] for r in rows):
         lines += [f'## {scene}', '', '| variant | preset | budget | Chamfer x100 | components | steps | '
-                  'PSNR | others | status | picture |',
-                  '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+                  'PSNR | others | status | ran | picture |',
+                  '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
         for r in (r for r in rows if r['scene'] == scene):
             pic = f"[png]({r['picture']})" if r.get('picture') else ''
             comp = _fmt(r.get('components'), 'd')
@@ -301,7 +351,8 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
                       + (', **loaded machine**' if r.get('others', 0) > LOADED else ''))
             lines.append(f"| {r['variant']} | {r['preset']} | {r['minutes']:g} min | "
                          f"{_fmt(r.get('chamfer'), '.3f')} | {comp} | {_fmt(r.get('steps'), 'd')} | "
-                         f"{_fmt(r.get('psnr'), '.2f')} | {_fmt(r.get('others'), '.0%')} | {status} | {pic} |")
+                         f"{_fmt(r.get('psnr'), '.2f')} | {_fmt(r.get('others'), '.0%')} | {status} | "
+                         f"{r.get('date', '')} {r.get('commit', '')} | {pic} |")
         lines.append('')
     verdicts = criterion(rows)
     if verdicts:
@@ -372,7 +423,8 @@ def main(argv=None) -> None:
                'machine': f'{platform.processor() or platform.machine()}, {os.cpu_count()} cores'}
     pictures = os.path.join(args.doc, 'quality')
     os.makedirs(pictures, exist_ok=True)
-    rows = []
+    earlier, rows = read_record(args.doc), []
+    stamp = {'date': started['date'], 'commit': commit(), 'machine': started['machine']}
     for scene in scenes:
         gt = os.path.join(args.data, scene, 'gt.ply')
         for variant in args.variants:
@@ -384,11 +436,13 @@ def main(argv=None) -> None:
                     name = f"{scene}_{variant}_{_tag(preset, minutes)}.png"
                     picture(mesh, gt, os.path.join(pictures, name))
                     row['picture'] = os.path.relpath(os.path.join(pictures, name), args.doc)
-                rows.append(row)
+                rows.append({**row, **stamp})
                 print(f"{scene} {variant} {preset} {minutes:g} min: {row['status']}, Chamfer "
                       f"{_fmt(row.get('chamfer'), '.3f') or '-'}, components "
                       f"{_fmt(row.get('components'), 'd') or '-'}", flush=True)
-                path = write_doc(rows, args.doc, command, started, (time.time() - t0) / 60, configs)
+                merged = merge(earlier, rows, scenes)
+                write_record(merged, args.doc)
+                path = write_doc(merged, args.doc, command, started, (time.time() - t0) / 60)
     print(f'wrote {path}')
 
 
