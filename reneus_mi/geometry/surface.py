@@ -6,7 +6,10 @@ deletes real parts of multi-part objects (chair legs, a handle), so a second
 rule is offered: crop the mesh to the container, which removes the "fake walls"
 a field may grow on the glass without touching the object. Whoever reports
 numbers says which rule was used (:func:`postprocess`). :func:`field_mesh`
-does both in the world of a reconstruction.
+does both in the world of a reconstruction, and first joins the pieces that the field
+itself nearly joins (:func:`bridge`): thin parts a pixel wide, whose SDF stops a
+fraction of a cell short of zero, otherwise come out as gaps with the parts beyond
+them floating free.
 """
 from __future__ import annotations
 
@@ -31,10 +34,16 @@ CLEAN_GAP = 4.0
 #: of bench/quality.py were at most 0.2 %); specks under CLEAN_SPECK of it go even next to
 #: the body (a few dozen faces of noise, no part).
 CLEAN_SHARE, CLEAN_SPECK = 0.01, 1e-3
+#: :func:`bridge` joins pieces whose connection stays below the field's own blur 1/s (there
+#: NeuS's density already renders a quarter of opacity and more) but never further than this
+#: many grid cells (a blurry field early in training), no further than :func:`clean` keeps
+#: pieces anyway.
+BRIDGE_CELLS = 2.0
 #: Bytes per grid point of marching cubes: the float32 SDF grid, skimage's
 #: working copies, the vertices and faces. Measured (peak RSS, a sphere,
-#: resolution 64 -> 384): 4.9; doubled and more for surfaces with more faces.
-BYTES_PER_GRID_POINT = 12
+#: resolution 64 -> 384): 4.9; doubled and more for surfaces with more faces;
+#: and :func:`bridge`'s two label grids and its copy of the SDF.
+BYTES_PER_GRID_POINT = 24
 
 
 def _triple(value, name: str) -> np.ndarray:
@@ -83,13 +92,14 @@ def sdf_grid(field: Field, lo, hi, resolution, chunk: int = 2**18) -> np.ndarray
     return out.reshape(nx, ny, nz)
 
 
-def extract_mesh(field: Field, lo, hi, resolution=256, *, to_world=None) -> trimesh.Trimesh:
+def extract_mesh(field: Field, lo, hi, resolution=256, *, to_world=None, gap: float = 0.0) -> trimesh.Trimesh:
     """Marching Cubes on the zero level set of ``field`` inside the box ``[lo, hi]``.
 
     The field lives in a normalised frame; ``to_world`` (a 4x4 matrix or a
     ``mi.ScalarTransform4f``) maps the vertices into the dataset's frame. Faces
     are wound so that normals point out of the object (where g > 0), also when
-    ``to_world`` mirrors.
+    ``to_world`` mirrors. With ``gap`` > 0 (SDF units) the pieces that the field
+    joins below ``gap`` are joined first (:func:`bridge`).
     """
     from skimage.measure import marching_cubes
 
@@ -102,6 +112,8 @@ def extract_mesh(field: Field, lo, hi, resolution=256, *, to_world=None) -> trim
     if not g_min < 0.0 < g_max:
         raise NoSurfaceError(f'{type(field).__name__} has no zero crossing in the box lo={lo.tolist()} '
                          f'hi={hi.tolist()}: the SDF ranges over [{g_min:.4g}, {g_max:.4g}]')
+    if gap > 0:
+        grid = bridge(grid, gap)
     step = (hi - lo) / (np.asarray(grid.shape) - 1)
     # skimage's 'descent' winding puts the normals on the side where the
     # values grow: outwards for an SDF (checked by the sign of the volume in tests).
@@ -116,6 +128,83 @@ def extract_mesh(field: Field, lo, hi, resolution=256, *, to_world=None) -> trim
         if np.linalg.det(m[:3, :3]) < 0:
             faces = faces[:, ::-1]
     return trimesh.Trimesh(vertices=verts, faces=faces, process=False)
+
+
+def bridge(grid: np.ndarray, gap: float) -> np.ndarray:
+    """``grid`` (an SDF on a grid) with the pieces of its zero set that it joins below ``gap`` joined.
+
+    A part a pixel thin that the field renders, but whose SDF stops short of zero along
+    it, leaves marching cubes a gap, and whatever lies beyond floats free (a bud on its
+    stalk, an insect's foot). Where the grid joins two pieces of {g < 0} through
+    {g < ``gap``}, the shortest such connection (in grid steps) is carved below zero, one
+    voxel wide: marching cubes then draws a stalk about a cell thick along it. Pieces
+    joined only through values above ``gap`` stay apart. Returns ``grid`` itself when
+    nothing is joined, else a copy.
+    """
+    from scipy import ndimage
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    solid = grid < 0
+    pieces, n_pieces = ndimage.label(solid)
+    if n_pieces < 2:
+        return grid
+    near, _ = ndimage.label(grid < gap)
+    # The near regions that hold two pieces or more: only there is anything to join.
+    regions = np.unique(near[solid].astype(np.int64) * (n_pieces + 1) + pieces[solid]) // (n_pieces + 1)
+    shared = np.unique(regions[np.bincount(regions)[regions] > 1])
+    if len(shared) == 0:
+        return grid
+    out = grid.copy()
+    # The pieces' inner voxels cannot be on a shortest connection: the graph is the
+    # near region less them (its surface shell, the necks and the pieces' outer layer).
+    inner = ndimage.binary_erosion(solid, border_value=1)
+    boxes = ndimage.find_objects(near)
+    for region in shared:
+        box = boxes[region - 1]
+        nodes = (near[box] == region) & ~inner[box]
+        index = np.full(nodes.shape, -1, np.int64)
+        index[nodes] = np.arange(int(nodes.sum()))
+        edges = []
+        for axis in range(3):
+            a = index[tuple(slice(None, -1) if d == axis else slice(None) for d in range(3))]
+            b = index[tuple(slice(1, None) if d == axis else slice(None) for d in range(3))]
+            both = (a >= 0) & (b >= 0)
+            edges.append(np.stack([a[both], b[both]]))
+        edges = np.concatenate(edges, axis=1)
+        count = int(nodes.sum())
+        graph = coo_matrix((np.ones(edges.shape[1]), (edges[0], edges[1])), shape=(count, count)).tocsr()
+        piece = pieces[box][nodes]
+        sources = np.flatnonzero(piece > 0)
+        # One search from every piece at once: each voxel's nearest piece and the way to it.
+        dist, pred, origin = dijkstra(graph, directed=False, indices=sources, min_only=True,
+                                      return_predecessors=True)
+        owner = np.where(origin >= 0, piece[origin], 0)   # 0: a voxel no piece reaches
+        # Where two pieces' territories touch lies the shortest connection between them;
+        # join the pieces along a minimum spanning tree of these connections (Kruskal).
+        cross = (owner[edges[0]] != owner[edges[1]]) & (owner[edges[0]] > 0) & (owner[edges[1]] > 0)
+        u, v = edges[0][cross], edges[1][cross]
+        order = np.argsort(dist[u] + dist[v], kind='stable')
+        parent = {int(p): int(p) for p in np.unique(piece[sources])}
+
+        def root(p):
+            while parent[p] != p:
+                parent[p] = parent[parent[p]]
+                p = parent[p]
+            return p
+
+        coords = np.argwhere(nodes)
+        for e in order:
+            ru, rv = root(int(owner[u[e]])), root(int(owner[v[e]]))
+            if ru == rv:
+                continue
+            parent[ru] = rv
+            for end in (u[e], v[e]):
+                while end >= 0:
+                    i, j, k = coords[end] + [b.start for b in box]
+                    out[i, j, k] = min(out[i, j, k], -gap)
+                    end = pred[end]
+    return out
 
 
 def component_labels(mesh: trimesh.Trimesh) -> np.ndarray:
@@ -217,8 +306,12 @@ def field_mesh(field: Field, frame: FieldFrame, resolution: int, mode: str, cont
     needed by ``mode='crop'``.
     """
     lo, hi = frame.field_box()
+    gap = 0.0
+    if mode == 'clean':
+        cell = float(np.max((np.asarray(hi) - np.asarray(lo)) / (resolution - 1)))
+        gap = min(1.0 / float(np.asarray(field.inv_s()).ravel()[0]), BRIDGE_CELLS * cell)
     with dr.suspend_grad():
-        mesh = extract_mesh(field, lo, hi, resolution, to_world=frame.to_world_matrix())
+        mesh = extract_mesh(field, lo, hi, resolution, to_world=frame.to_world_matrix(), gap=gap)
     if mode == 'crop':
         if not container:
             raise ReneusError("postprocess 'crop' needs the container mesh, and none is recorded")

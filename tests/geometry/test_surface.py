@@ -7,6 +7,7 @@ import reneus_mi  # noqa: F401  (sets the variant)
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.fields.analytic import SphereField, TorusField
 from reneus_mi.geometry.surface import extract_mesh, postprocess, sdf_grid
+from reneus_mi.render.frame import FieldFrame
 
 
 def sphere(radius, center, subdivisions):
@@ -123,6 +124,68 @@ def test_clean_drops_floaters_and_keeps_cut_off_parts():
     assert components(postprocess(mesh, 'largest')) == 1
 
 
+#: The bridge tests' gap: 0.6 cells of their 97-point grid over [-1, 1] (a sharp field's 1/s is
+#: under a cell).
+_GAP = 0.6 * 2.0 / 96
+
+
+def _bud_on_a_stalk(x, y, z, shortfall, m=np):
+    """SDF (``m``: numpy or drjit) of a body (sphere at the origin), a bud (sphere at x = 0.7) and
+    a stalk between them whose SDF stops ``shortfall`` above zero all along its axis (a capsule
+    of negative radius, on the x axis: grid points of the tests' grid); a floater (a sphere
+    near a corner) far from both."""
+    body = m.sqrt(x * x + y * y + z * z) - 0.3
+    bud = m.sqrt((x - 0.7) * (x - 0.7) + y * y + z * z) - 0.1
+    stalk = m.sqrt(y * y + z * z) + m.maximum(m.maximum(-x, x - 0.7), 0.0) + shortfall
+    floater = m.sqrt((x + 0.7) * (x + 0.7) + (y - 0.7) * (y - 0.7) + z * z) - 0.08
+    return m.minimum(m.minimum(body, bud), m.minimum(stalk, floater))
+
+
+def _pieces(grid) -> int:
+    from skimage.measure import marching_cubes
+    from reneus_mi.geometry.surface import components
+    verts, faces, _, _ = marching_cubes(grid, level=0.0)
+    return components(trimesh.Trimesh(verts, faces, process=False))
+
+
+@pytest.mark.parametrize('shortfall, pieces', [(0.5, 2), (1.5, 3)])
+def test_bridge_joins_what_the_field_nearly_joins(shortfall, pieces):
+    # The stalk's SDF stops half a gap short of zero: marching cubes alone loses it and the
+    # bud floats free; bridged, body and bud are one piece and the floater stays apart. A
+    # stalk 1.5 gaps short is not the field's: nothing is joined.
+    from reneus_mi.geometry.surface import bridge
+    t = np.linspace(-1.0, 1.0, 97)
+    grid = _bud_on_a_stalk(*np.meshgrid(t, t, t, indexing='ij'), shortfall * _GAP).astype(np.float32)
+    assert _pieces(grid) == 3
+    joined = bridge(grid, _GAP)
+    assert _pieces(joined) == pieces
+    if pieces == 3:
+        assert joined is grid
+    else:
+        # One voxel-wide line along the stalk's axis between the spheres, nothing else.
+        carved = np.argwhere(joined < grid)
+        assert 0 < len(carved) < 20
+        assert np.all((t[carved[:, 1]] == 0.0) & (t[carved[:, 2]] == 0.0))
+        assert np.all((t[carved[:, 0]] > 0.25) & (t[carved[:, 0]] < 0.65))
+
+
+class _BudField(SphereField):
+    def _distance(self, p):
+        import drjit as dr
+        return _bud_on_a_stalk(p.x, p.y, p.z, 0.5 * _GAP, dr)
+
+
+def test_the_clean_mesh_bridges_at_the_fields_own_blur():
+    # field_mesh's clean rule bridges below 1/s: here 1/s is the gap, and the stalk's SDF
+    # stops half of it short of zero.
+    from reneus_mi.geometry.surface import components, field_mesh
+    field = _BudField(inv_s=1.0 / _GAP)
+    assert components(field_mesh(field, FieldFrame(), 97, 'none')) == 3
+    clean = field_mesh(field, FieldFrame(), 97, 'clean')
+    assert components(clean) == 2            # body and bud joined; the floater (a real part) kept
+    assert clean.bounds[1][0] > 0.75         # the bud is there
+
+
 def test_components_counts_pieces_of_a_per_face_mesh():
     from reneus_mi.geometry.surface import components
     soup = _body_with_fragments()
@@ -140,7 +203,6 @@ class _FacingField(SphereField):
 
 def test_vertex_colours_are_the_radiance_seen_head_on():
     from reneus_mi.geometry.surface import field_colors
-    from reneus_mi.render.frame import FieldFrame
     frame = FieldFrame(center=(10.0, -5.0, 2.0), scale=30.0)
     mesh = sphere(0.4, (0.0, 0.0, 0.0), 3)
     world = mesh.vertices * 30.0 + [10.0, -5.0, 2.0]
