@@ -114,6 +114,19 @@ def busy_seconds() -> float | None:
     return (sum(ticks[:8]) - idle) / os.sysconf('SC_CLK_TCK')
 
 
+def cpu_model() -> str:
+    """The processor's name (/proc/cpuinfo), else its architecture: rows from different
+    machines are not comparable at the same budget."""
+    try:
+        with open('/proc/cpuinfo') as f:
+            for line in f:
+                if line.startswith('model name'):
+                    return line.split(':', 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def children_seconds() -> float:
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     return usage.ru_utime + usage.ru_stime
@@ -420,7 +433,7 @@ def main(argv=None) -> None:
     command = 'python bench/quality.py ' + shlex.join(sys.argv[1:] if argv is None else argv)
     t0 = time.time()
     started = {'date': datetime.date.today().isoformat(),
-               'machine': f'{platform.processor() or platform.machine()}, {os.cpu_count()} cores'}
+               'machine': f'{cpu_model()}, {os.cpu_count()} cores'}
     pictures = os.path.join(args.doc, 'quality')
     os.makedirs(pictures, exist_ok=True)
     earlier, rows = read_record(args.doc), []
