@@ -376,7 +376,7 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
                   '| scene | box | nobox | ratio | components | met |', '| --- | --- | --- | --- | --- | --- |']
         for v in verdicts:
             lines.append(f"| {v['scene']} | {v['box']:.3f} | {v['nobox']:.3f} | {v['ratio']:.2f} | "
-                         f"{v['components']} | {'yes' if v['met'] else 'no'} |")
+                         f"{v['components']} | {v['met']} |")
         lines.append('')
     os.makedirs(doc, exist_ok=True)
     path = os.path.join(doc, 'quality.md')
@@ -397,9 +397,12 @@ def criterion(rows: list[dict]) -> list[dict]:
             box, nobox = got['box'], got['nobox']
             ratio = box['chamfer'] / nobox['chamfer']
             comps = box.get('components')
+            met = ratio <= c['ratio'] and comps is not None and comps <= c['components']
+            # A budget buys different training on different machines: no verdict across them.
+            same = box.get('machine') == nobox.get('machine')
             out.append({'scene': scene, 'box': box['chamfer'], 'nobox': nobox['chamfer'], 'ratio': ratio,
-                        'components': comps,
-                        'met': ratio <= c['ratio'] and comps is not None and comps <= c['components']})
+                        'components': comps, 'met': ('yes' if met else 'no') if same else
+                        'not comparable: the two rows ran on different machines'})
     return out
 
 
