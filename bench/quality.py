@@ -315,12 +315,15 @@ def write_record(rows: list[dict], doc: str) -> None:
     os.replace(path + '.tmp', path)
 
 
-def commit() -> str:
-    """The commit the benchmark runs at, with ``+`` when the working tree differs from it."""
+def commit(doc: str) -> str:
+    """The commit the benchmark runs at, with ``+`` when the working tree differs from it
+    outside ``doc`` (which the benchmark itself writes)."""
     def git(*args):
         return subprocess.run(['git', '-C', ROOT, *args], capture_output=True, text=True).stdout.strip()
     head = git('rev-parse', '--short', 'HEAD') or 'unknown'
-    return head + ('+' if git('status', '--porcelain', '--untracked-files=no') else '')
+    changed = git('status', '--porcelain', '--untracked-files=no', '--', '.',
+                  f':(exclude){os.path.relpath(os.path.abspath(doc), ROOT)}')
+    return head + ('+' if changed else '')
 
 
 # --- the document ---------------------------------------------------------------------------
@@ -440,7 +443,7 @@ def main(argv=None) -> None:
     pictures = os.path.join(args.doc, 'quality')
     os.makedirs(pictures, exist_ok=True)
     earlier, rows = read_record(args.doc), []
-    stamp = {'date': started['date'], 'commit': commit(), 'machine': started['machine']}
+    stamp = {'date': started['date'], 'commit': commit(args.doc), 'machine': started['machine']}
     for scene in scenes:
         gt = os.path.join(args.data, scene, 'gt.ply')
         for variant in args.variants:
