@@ -179,9 +179,10 @@ class TrainConfig:
     reduced as they load (area averaging; cameras and masks follow), which lowers the memory
     they take (0: as they are)."""
     postprocess: str = 'clean'
-    """Mesh post-processing: 'clean' (drop floating fragments, keep parts that noise cut off
-    next to the body), 'largest' (keep the largest connected component: the paper), 'crop'
-    (drop what lies outside the container) or 'none'."""
+    """Mesh post-processing: 'clean' (join the pieces the field joins within its blur 1/s, drop
+    floating fragments, keep parts that noise cut off next to the body), 'largest' (keep the
+    largest connected component: the paper), 'crop' (drop what lies outside the container) or
+    'none'."""
     divergence_factor: float = 50.0
     """Stop when the loss exceeds this multiple of its lowest value so far (after warm-up)."""
     refine: RefineConfig = dataclasses.field(default_factory=RefineConfig)

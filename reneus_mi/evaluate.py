@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--postprocess', choices=POSTPROCESS_MODES, default='largest',
                         help="clean-up of PRED before measuring: 'largest' keeps the connected component "
                              "with most vertices (the paper's rule, drops real parts of multi-part objects), "
-                             "'clean' drops floating fragments only, "
+                             "'clean' drops floating fragments only (joining pieces needs the field: extract does it), "
                              "'crop' removes faces outside --container, 'none' measures PRED as is "
                              '(default: %(default)s)')
     parser.add_argument('--threshold', type=float, default=0.01,

@@ -27,7 +27,8 @@ def main(argv=None) -> int:
     parser.add_argument('-o', '--output', default='mesh.ply', help='mesh file (.ply, .obj, .stl, .off)')
     parser.add_argument('--resolution', type=int, default=512, help='marching-cubes grid resolution')
     parser.add_argument('--postprocess', choices=POSTPROCESS_MODES, default='clean',
-                        help="'clean' (drop floating fragments, keep cut-off thin parts), 'largest' connected "
+                        help="'clean' (join pieces the field joins within its blur 1/s, drop floating fragments, "
+                             "keep cut-off thin parts), 'largest' connected "
                              "component (the paper), 'crop' to the container, or 'none' (default: %(default)s)")
     parser.add_argument('--overwrite', action='store_true', help='replace an existing output file')
     args = parser.parse_args(argv)
