@@ -163,8 +163,9 @@ def bridge(grid: np.ndarray, gap: float) -> np.ndarray:
     for region in shared:
         box = boxes[region - 1]
         nodes = (near[box] == region) & ~inner[box]
+        count = int(nodes.sum())
         index = np.full(nodes.shape, -1, np.int64)
-        index[nodes] = np.arange(int(nodes.sum()))
+        index[nodes] = np.arange(count)
         edges = []
         for axis in range(3):
             a = index[tuple(slice(None, -1) if d == axis else slice(None) for d in range(3))]
@@ -172,7 +173,6 @@ def bridge(grid: np.ndarray, gap: float) -> np.ndarray:
             both = (a >= 0) & (b >= 0)
             edges.append(np.stack([a[both], b[both]]))
         edges = np.concatenate(edges, axis=1)
-        count = int(nodes.sum())
         graph = coo_matrix((np.ones(edges.shape[1]), (edges[0], edges[1])), shape=(count, count)).tocsr()
         piece = pieces[box][nodes]
         sources = np.flatnonzero(piece > 0)
@@ -186,6 +186,7 @@ def bridge(grid: np.ndarray, gap: float) -> np.ndarray:
         u, v = edges[0][cross], edges[1][cross]
         order = np.argsort(dist[u] + dist[v], kind='stable')
         parent = {int(p): int(p) for p in np.unique(piece[sources])}
+        joins = len(parent) - 1
 
         def root(p):
             while parent[p] != p:
@@ -195,10 +196,13 @@ def bridge(grid: np.ndarray, gap: float) -> np.ndarray:
 
         coords = np.argwhere(nodes)
         for e in order:
+            if joins == 0:
+                break
             ru, rv = root(int(owner[u[e]])), root(int(owner[v[e]]))
             if ru == rv:
                 continue
             parent[ru] = rv
+            joins -= 1
             for end in (u[e], v[e]):
                 while end >= 0:
                     i, j, k = coords[end] + [b.start for b in box]
