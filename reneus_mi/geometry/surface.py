@@ -39,6 +39,10 @@ CLEAN_SHARE, CLEAN_SPECK = 0.01, 1e-3
 #: many grid cells (a blurry field early in training), no further than :func:`clean` keeps
 #: pieces anyway.
 BRIDGE_CELLS = 2.0
+#: A region below the gap larger than this share of the grid is fog (a field early in training,
+#: its SDF near zero everywhere), not a surface's shell (about 1 % at 512^3): not bridged, which
+#: also bounds the search graph's memory.
+BRIDGE_MAX_SHARE = 0.05
 #: Bytes per grid point of marching cubes: the float32 SDF grid, skimage's
 #: working copies, the vertices and faces. Measured (peak RSS, a sphere,
 #: resolution 64 -> 384): 4.9; doubled and more for surfaces with more faces;
@@ -164,6 +168,8 @@ def bridge(grid: np.ndarray, gap: float) -> np.ndarray:
         box = boxes[region - 1]
         nodes = (near[box] == region) & ~inner[box]
         count = int(nodes.sum())
+        if count > BRIDGE_MAX_SHARE * grid.size:
+            continue
         index = np.full(nodes.shape, -1, np.int64)
         index[nodes] = np.arange(count)
         edges = []

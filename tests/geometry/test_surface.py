@@ -169,6 +169,16 @@ def test_bridge_joins_what_the_field_nearly_joins(shortfall, pieces):
         assert np.all((t[carved[:, 0]] > 0.25) & (t[carved[:, 0]] < 0.65))
 
 
+def test_bridge_leaves_fog_alone():
+    # A field early in training: its SDF within the gap of zero nearly everywhere, in many
+    # pieces. That is no surface's shell; nothing is carved (and no graph of the grid is built).
+    from reneus_mi.geometry.surface import bridge
+    rng = np.random.default_rng(0)
+    fog = rng.uniform(-0.2 * _GAP, 0.9 * _GAP, (48, 48, 48)).astype(np.float32)
+    assert _pieces(fog) > 10
+    assert np.array_equal(bridge(fog, _GAP), fog)
+
+
 class _BudField(SphereField):
     def _distance(self, p):
         import drjit as dr
