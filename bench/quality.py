@@ -309,10 +309,9 @@ def merge(earlier: list[dict], rows: list[dict], scenes: list[str]) -> list[dict
 
 
 def write_record(rows: list[dict], doc: str) -> None:
-    path = os.path.join(doc, 'quality.json')
-    with open(path + '.tmp', 'w') as f:
+    from reneus_mi.io import atomic_open
+    with atomic_open(os.path.join(doc, 'quality.json'), 'w') as f:
         json.dump({'rows': [{k: r[k] for k in RECORDED if r.get(k) is not None} for r in rows]}, f, indent=1)
-    os.replace(path + '.tmp', path)
 
 
 def commit(doc: str) -> str:
@@ -382,10 +381,10 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
                          f"{v['components']} | {v['met']} |")
         lines.append('')
     os.makedirs(doc, exist_ok=True)
+    from reneus_mi.io import atomic_open
     path = os.path.join(doc, 'quality.md')
-    with open(path + '.tmp', 'w') as f:
+    with atomic_open(path, 'w') as f:
         f.write('\n'.join(lines))
-    os.replace(path + '.tmp', path)
     return path
 
 
