@@ -194,8 +194,13 @@ def _clear(folder) -> None:
 
 def main(argv=None) -> int:
     """The local pool's worker process: ``python -m reneus_mi.batch.worker TASK_JSON``."""
+    from reneus_mi.errors import exit_on_error
     argv = sys.argv[1:] if argv is None else argv
-    outcome = run_task(json.loads(argv[0]))
+    # A run stopped by Ctrl-C with steps to keep writes its checkpoint and raises
+    # KeyboardInterrupt: the worker ends with the interrupt's status, which the pool reads as
+    # interrupted (resumable), not as a worker killed by the signal.
+    with exit_on_error():
+        outcome = run_task(json.loads(argv[0]))
     print(json.dumps(outcome), flush=True)
     return EXIT_BUSY if outcome['outcome'] == 'busy' else 0
 

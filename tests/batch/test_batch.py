@@ -145,6 +145,8 @@ def _wait_for(test, timeout=120.0, what=''):
 
 #: A run long enough to be caught in the middle, checkpointed every step.
 LONG = {'train.iterations': 40, 'train.checkpoint_every': 1}
+#: No checkpoint between steps: a Ctrl-C always finds work to keep (deferred to the step's end).
+UNSAVED = {'train.checkpoint_every': 1000}
 
 
 def test_a_killed_worker_is_resumed_exactly(collection, tmp_path):
@@ -186,8 +188,10 @@ def test_ctrl_c_stops_the_batch_and_its_runs_resumably(collection, tmp_path, to)
     the batch ends promptly with one line and status 130, its worker writes its checkpoint
     and stops (none is left running), the run is resumable, not failed, and the next batch
     finishes it from there. Harmful before: the batch ended at once and left its worker
-    running, holding the run."""
-    manifest = _manifest(tmp_path, collection, [dict(name='a', data='a', **LONG)])
+    running, holding the run; and a worker interrupted with steps not yet checkpointed (the
+    usual case: here every step is unsaved) died of the KeyboardInterrupt its run raised after
+    writing the checkpoint, and the batch recorded the run failed."""
+    manifest = _manifest(tmp_path, collection, [dict(name='a', data='a', **dict(LONG, **UNSAVED))])
     runs = tmp_path / 'runs'
     proc = subprocess.Popen([sys.executable, '-m', 'reneus_mi.batch', manifest, '-o', str(runs), '--preset', 'tiny',
                              '--workers', '1', '--threads', '1'],
