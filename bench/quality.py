@@ -2,7 +2,7 @@
 
     python bench/quality.py [--data /work/data/blender_set] [--scenes stool knot]
                             [--variants box nobox] [--configs fast:2,5,10 small:10]
-                            [--runs runs/quality] [--doc docs] [--fresh | --remesh]
+                            [--runs runs/quality] [--doc docs] [--fresh | --remesh | --rewrite]
 
 The data are the Blender Cycles set of ``bench/blender_set.py`` (``DATA/SCENE/box/``,
 ``nobox/``, the ground truth ``DATA/SCENE/gt.ply`` outside both). For each scene, variant
@@ -23,7 +23,8 @@ machine: rows that an invocation does not run stay in the document as they were 
 that the whole table (hours on a CPU) can be filled over several sittings and machines.
 Finished runs (an ``evaluate.json``) are read back, so a killed
 benchmark continues where it stopped; ``--fresh`` runs everything again, ``--remesh`` meshes
-and evaluates the finished runs again (a change of the clean-up, measured without training). A smoke run:
+and evaluates the finished runs again (a change of the clean-up, measured without training),
+``--rewrite`` writes the document again from the record alone. A smoke run:
 ``--scenes stool --configs fast:0.3 --doc /tmp/quality``.
 """
 from __future__ import annotations
@@ -333,12 +334,19 @@ def _fmt(value, spec: str) -> str:
 
 def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: float) -> str:
     smoke = any(float(r['minutes']) < 2 for r in rows)
-    machines = ' and '.join(dict.fromkeys(r.get('machine') or started['machine'] for r in rows))
+    def machine_of(r):
+        return r.get('machine') or started['machine']
+
+    machines = list(dict.fromkeys(machine_of(r) for r in rows))
+    # Rows from several machines are told apart by a letter in the column "ran".
+    letter = {m: chr(ord('A') + i) for i, m in enumerate(machines)} if len(machines) > 1 else {}
+    named = (f"Machines (column \"ran\"): {'; '.join(f'{letter[m]}: {m}' for m in machines)}" if letter
+             else f'Machine: {machines[0]}')
     lines = ['# Reconstruction quality on a second renderer\'s photographs', '',
              f'Written by `{command}` on {started["date"]} ({minutes:.0f} min). Rows it did not run are '
              'kept from earlier invocations (`quality.json`); column "ran" says when and at which commit '
              'each row ran.', '',
-             f'Machine: {machines}. Column "others": the share of the machine\'s CPU that '
+             f'{named}. Column "others": the share of the machine\'s CPU that '
              f'other processes took while the row ran; a row above {LOADED:.0%} ran on a **loaded '
              'machine** and is marked so (blank: not measured).', '']
     if smoke:
@@ -367,7 +375,7 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
             lines.append(f"| {r['variant']} | {r['preset']} | {r['minutes']:g} min | "
                          f"{_fmt(r.get('chamfer'), '.3f')} | {comp} | {_fmt(r.get('steps'), 'd')} | "
                          f"{_fmt(r.get('psnr'), '.2f')} | {_fmt(r.get('others'), '.0%')} | {status} | "
-                         f"{r.get('date', '')} {r.get('commit', '')} | {pic} |")
+                         f"{r.get('date', '')} {r.get('commit', '')} {letter.get(machine_of(r), '')} | {pic} |")
         lines.append('')
     verdicts = criterion(rows)
     if verdicts:
@@ -427,7 +435,19 @@ def main(argv=None) -> None:
     parser.add_argument('--remesh', action='store_true',
                         help="mesh the finished runs' checkpoints again with the current code (as the run "
                              'would: its resolution, the default clean-up) and evaluate them, without training')
+    parser.add_argument('--rewrite', action='store_true',
+                        help='write DOC/quality.md again from the rows kept in DOC/quality.json, running '
+                             "nothing (after a change of the document's form)")
     args = parser.parse_args(argv)
+    command = 'python bench/quality.py ' + shlex.join(sys.argv[1:] if argv is None else argv)
+    started = {'date': datetime.date.today().isoformat(),
+               'machine': f'{cpu_model()}, {os.cpu_count()} cores'}
+    if args.rewrite:
+        rows = read_record(args.doc)
+        if not rows:
+            raise SystemExit(f'error: {args.doc}: no rows in quality.json to write')
+        print(f'wrote {write_doc(rows, args.doc, command, started, 0.0)}')
+        return
     configs = parse_configs(args.configs)
     if not os.path.isdir(args.data):
         raise SystemExit(f'error: {args.data}: no such folder; make the set with bench/blender_set.py')
@@ -435,10 +455,7 @@ def main(argv=None) -> None:
                                    if os.path.isfile(os.path.join(args.data, s, 'gt.ply')))
     if not scenes:
         raise SystemExit(f'error: {args.data}: no scenes (folders with a gt.ply)')
-    command = 'python bench/quality.py ' + shlex.join(sys.argv[1:] if argv is None else argv)
     t0 = time.time()
-    started = {'date': datetime.date.today().isoformat(),
-               'machine': f'{cpu_model()}, {os.cpu_count()} cores'}
     pictures = os.path.join(args.doc, 'quality')
     os.makedirs(pictures, exist_ok=True)
     earlier, rows = read_record(args.doc), []
