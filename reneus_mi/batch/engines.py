@@ -290,14 +290,32 @@ class RayEngine(Engine):
         return (f"Ray ({total.get('CPU', 0):g} CPUs, {total.get('GPU', 0):g} GPUs), "
                 f'{self.res.cpus} CPU(s) and {self.res.gpus} GPU(s) per run')
 
-    on_interrupt = 'the runs were cancelled (each keeps its last checkpoint)'
+    on_interrupt = 'each run wrote its checkpoint and stopped'
 
     def close(self) -> list[tuple[dict, dict]]:
-        for ref in list(self.refs):
+        """Cancel each task still out: Ray raises KeyboardInterrupt in it, its run writes its
+        checkpoint at the end of the step and ends; only then may a Ray this batch started
+        go, since shutting it down kills its workers where they are."""
+        for ref in self.refs:
             self.ray.cancel(ref)
+        ended = []
+        try:
+            done, _ = self.ray.wait(list(self.refs), num_returns=len(self.refs)) if self.refs else ([], [])
+        except KeyboardInterrupt:   # a second Ctrl-C: leave at once, the runs keep older checkpoints
+            done = []
+        for ref in done:
+            task, start = self.refs.pop(ref)
+            try:
+                outcome = self.ray.get(ref)
+            except self.ray.exceptions.TaskCancelledError:
+                outcome = {'outcome': 'interrupted', 'seconds': time.perf_counter() - start}
+            except self.ray.exceptions.RayError as e:
+                outcome = {'outcome': 'died', 'reason': _ray_death(self.ray, e),
+                           'seconds': time.perf_counter() - start}
+            ended.append((task, outcome))
         if self.started:
             self.ray.shutdown()
-        return []
+        return ended
 
 
 def _ray_death(ray, e) -> str:
