@@ -86,7 +86,12 @@ def _pose_errors(values: dict, truth_container: str) -> tuple[float, float, floa
 
 @pytest.mark.slow
 @pytest.mark.parametrize('quantity', ['ior', 'ambient', 'pose'])
-def test_refining_recovers_the_truth_and_the_shape(photographs, quantity):
+def test_refining_recovers_the_truth_and_the_shape(photographs, quantity, request):
+    if quantity == 'pose':
+        # On two threads the order of float sums varies, and over 200 steps it can carry the
+        # pose's estimate (y scale 0.0044, rotation 0.0059 rad in one suite run; 0.0007-0.0012
+        # and 0.003 in five others): one thread makes the run the same every time.
+        request.getfixturevalue('one_thread')
     fixed, _, _ = _reconstruct(photographs, quantity, refine=False)
     refined, result, out = _reconstruct(photographs, quantity, refine=True)
     values = result['refined']
