@@ -271,11 +271,17 @@ class RayEngine(Engine):
         ready, _ = self.ray.wait(list(self.refs), num_returns=1, timeout=timeout)
         if ready:
             ready, _ = self.ray.wait(list(self.refs), num_returns=len(self.refs), timeout=0)
+        return self._collect(ready)
+
+    def _collect(self, refs) -> list[tuple[dict, dict]]:
+        """(task, outcome) of these ended tasks, no longer out; a cancelled one was interrupted."""
         ended = []
-        for ref in ready:
+        for ref in refs:
             task, start = self.refs.pop(ref)
             try:
                 outcome = self.ray.get(ref)
+            except self.ray.exceptions.TaskCancelledError:
+                outcome = {'outcome': 'interrupted', 'seconds': time.perf_counter() - start}
             except self.ray.exceptions.RayError as e:
                 outcome = {'outcome': 'died', 'reason': _ray_death(self.ray, e),
                            'seconds': time.perf_counter() - start}
@@ -298,21 +304,11 @@ class RayEngine(Engine):
         go, since shutting it down kills its workers where they are."""
         for ref in self.refs:
             self.ray.cancel(ref)
-        ended = []
         try:
             done, _ = self.ray.wait(list(self.refs), num_returns=len(self.refs)) if self.refs else ([], [])
         except KeyboardInterrupt:   # a second Ctrl-C: leave at once, the runs keep older checkpoints
             done = []
-        for ref in done:
-            task, start = self.refs.pop(ref)
-            try:
-                outcome = self.ray.get(ref)
-            except self.ray.exceptions.TaskCancelledError:
-                outcome = {'outcome': 'interrupted', 'seconds': time.perf_counter() - start}
-            except self.ray.exceptions.RayError as e:
-                outcome = {'outcome': 'died', 'reason': _ray_death(self.ray, e),
-                           'seconds': time.perf_counter() - start}
-            ended.append((task, outcome))
+        ended = self._collect(done)
         if self.started:
             self.ray.shutdown()
         return ended
@@ -320,7 +316,7 @@ class RayEngine(Engine):
 
 def _ray_death(ray, e) -> str:
     kinds = {'WorkerCrashedError': 'worker died (killed, or out of memory)', 'NodeDiedError': 'node lost',
-             'OutOfMemoryError': 'killed by Ray: out of memory', 'TaskCancelledError': 'cancelled'}
+             'OutOfMemoryError': 'killed by Ray: out of memory'}
     return kinds.get(type(e).__name__, f'{type(e).__name__}: {one_line_of(e)}')
 
 
