@@ -20,6 +20,11 @@ from reneus_mi.render.surroundings import Surroundings
 from reneus_mi.render.volume_rendering import volume_render
 
 VARIANT = mi.variant()
+#: Interfaces that ``terminal='trace'`` follows beyond the ray tree: a box's internal
+#: reflections rarely need more, and each one left costs only weight below the cutoff.
+TRACE_BOUNCES = 8
+#: Weight below which ``terminal='trace'`` stops following a ray (it then sees outside straight on).
+TRACE_CUTOFF = 1e-3
 
 #: Names of the AOV channels, after R, G, B (and alpha where the film has it).
 AOV_NAMES = ('mask', 'sparsity', 'nx', 'ny', 'nz')
@@ -294,10 +299,50 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                 acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, leaving), leaving)
                 return
             if depth == depth_limit:
-                if render.terminal == 'ambient':
+                if render.terminal == 'trace' and not surroundings.uniform:
+                    self._trace_beyond(surroundings, rays, hit, T, acc)
+                elif render.terminal != 'black':
+                    # Uniform light: the empty container's transport conserves it, and what
+                    # 'trace' would gather is exactly the ambient.
                     acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, hit.valid), hit.valid)
                 return
             rays = self._interface(rays, hit, T, surroundings.eta, reflect=not plus, depth=depth)
+
+    def _trace_beyond(self, surroundings, rays, hit, T, acc):
+        """The light beyond the tree's last segment, through the container without the field.
+
+        At each further interface the branch that leaves the container ends with what it meets
+        outside (the backdrop or C_out) and the other goes on, weighted by R or 1 - R; after
+        :data:`TRACE_BOUNCES` interfaces, or once its weight is below :data:`TRACE_CUTOFF`, a
+        ray sees outside straight on, as ``ambient`` does. For a convex container no ray that
+        left comes back, so this is the empty container's exact transport: what it drops is
+        the field beyond the tree (its shadow on these paths)."""
+        outside = surroundings.outside
+        # Rays that met nothing took what they see in the tree.
+        alive, β = hit.valid, rays.β * T
+        for bounce in range(TRACE_BOUNCES + 1):
+            stop = alive & ((bounce == TRACE_BOUNCES) | (dr.detach(β) < TRACE_CUTOFF))
+            acc.add(rays.camera, β * outside(hit.p, rays.d, stop), stop)
+            if bounce == TRACE_BOUNCES:
+                return
+            go = alive & ~stop
+            R, d_r, d_t = interface(rays.d, hit.n_s, surroundings.eta)
+            # From inside the refracted ray leaves, from outside the reflected one does.
+            inside = dr.dot(rays.d, hit.n) > 0.0
+            d_out, w_out = dr.select(inside, d_t, d_r), dr.select(inside, 1.0 - R, R)
+            escapes = go & (w_out > 0.0)
+            acc.add(rays.camera, β * w_out * outside(_offset(hit.p, hit.n, d_out), d_out, escapes), escapes)
+            keep = dr.compress(go & (w_out < 1.0))
+            if dr.width(keep) == 0:
+                return
+            β = dr.gather(mi.Float, β * (1.0 - w_out), keep)
+            d = dr.gather(mi.Vector3f, dr.select(inside, d_r, d_t), keep)
+            o = _offset(dr.gather(mi.Point3f, hit.p, keep), dr.gather(type(hit.n), hit.n, keep), d)
+            rays = _Rays(o=o, d=d, β=β, camera=dr.gather(mi.UInt32, rays.camera, keep))
+            hit = self._intersect(surroundings, rays)
+            # A ray that grazed an edge and met nothing more sees outside from where it is.
+            acc.add(rays.camera, β * outside(rays.o, rays.d, ~hit.valid), ~hit.valid)
+            alive = hit.valid
 
     def _intersect(self, surroundings, rays) -> '_Hit':
         """The rays' next container interface: distance, point, normals (differentiable in the pose)."""

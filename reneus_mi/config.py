@@ -33,7 +33,7 @@ from reneus_mi.render.ray_samplers import SamplerConfig
 from reneus_mi.render.surroundings import LIGHTS
 
 MODES = ('reneus', 'neus', 'neus_plus')
-TERMINALS = ('ambient', 'black')
+TERMINALS = ('trace', 'ambient', 'black')
 
 
 @dataclass
@@ -45,9 +45,12 @@ class RenderConfig:
     sphere) or 'neus_plus' (refracts once on entry, no reflection, no Fresnel weights)."""
     max_depth: int = 2
     """D_re, the number of interface events followed (the paper: 2)."""
-    terminal: str = 'ambient'
-    """What a ray left at the depth limit sees beyond its last segment: 'ambient' (nearly exact
-    in ambient light) or 'black' (what Mitsuba's path tracer computes with max_depth = D_re + 1)."""
+    terminal: str = 'trace'
+    """What a ray left at the depth limit sees beyond its last segment: 'trace' (the container
+    without the field: its further reflections and refractions, to the backdrop or the ambient;
+    the same as 'ambient' in uniform light), 'ambient' (straight on: the backdrop or C_out; wrong
+    where the glass reflects totally toward a board) or 'black' (what Mitsuba's path tracer
+    computes with max_depth = D_re + 1)."""
     gamma: float = 2.2
     """Output is C^(1/gamma), the paper's camera response; 1 gives linear radiance."""
     rr_threshold: float = 0.0

@@ -210,6 +210,16 @@ class Surroundings:
         self.light = None if light == 'emitter' else Light(light, emitter)
         self.pose = ContainerPose(pivot) if pose else None
 
+    @property
+    def uniform(self) -> bool:
+        """Whether every ray leaving the container sees one radiance: no backdrop, and a constant
+        emitter or an ambient light."""
+        if self.backdrop is not None:
+            return False
+        if self.light is not None:
+            return self.light.kind == 'ambient'
+        return self.emitter.class_name() == 'ConstantBackgroundEmitter'
+
     def mesh(self):
         """The container as the scene loaded it (world coordinates), as one trimesh."""
         import trimesh
