@@ -478,7 +478,8 @@ def _surroundings(scene: mi.Scene, render: RenderConfig) -> Surroundings:
         raise ReneusError("reneus integrator: the scene has no environment emitter; expected "
                           "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
     if render.mode == 'neus':
-        return Surroundings(1.0, shapes, scene.environment(), backdrop=backdrop, light=render.light)
+        return Surroundings(1.0, shapes, scene.environment(), backdrop=backdrop, light=render.light,
+                            board_texels=render.board_texels)
     for shape in other:
         bsdf = shape.bsdf()
         name = bsdf.class_name() if bsdf is not None else 'no'
@@ -502,7 +503,7 @@ def _surroundings(scene: mi.Scene, render: RenderConfig) -> Surroundings:
     bbox = _bbox(shapes)
     return Surroundings(eta, shapes, scene.environment(), backdrop=backdrop, light=render.light,
                         pose=render.container_pose, pivot=0.5 * (bbox.min + bbox.max),
-                        crease_angle=render.crease_angle)
+                        crease_angle=render.crease_angle, board_texels=render.board_texels)
 
 
 def _same(a: tuple, b: tuple) -> bool:

@@ -66,6 +66,11 @@ class RenderConfig:
     container_pose: bool = False
     """Give the container a pose and per-axis scale (container.translation, .rotation,
     .log_scale), starting at the scene's placement."""
+    board_texels: int = 256
+    """Texels along the longer side of the grid of gains fitted on the backdrop's emission
+    (:class:`~reneus_mi.render.surroundings.BoardShading`: the light the container and the
+    specimen let reach the printed board; 256 on a 240 mm board: about 1 mm; 0: the board
+    as the scene gives it, lit evenly)."""
     crease_angle: float = CREASE_ANGLE
     """Container faces meeting at more than this angle (degrees) are not smoothed together:
     each side bends light by its own faces (a box stays a box however its file was written);
@@ -75,7 +80,7 @@ class RenderConfig:
         check_choice(self, 'mode', MODES)
         check_choice(self, 'terminal', TERMINALS)
         check_choice(self, 'light', LIGHTS)
-        check_numbers(self, at_least_zero=('max_depth', 'rr_threshold'), positive=('gamma',))
+        check_numbers(self, at_least_zero=('max_depth', 'rr_threshold', 'board_texels'), positive=('gamma',))
         if not 0.0 <= self.crease_angle <= 180.0:
             raise ReneusError(f'crease_angle={self.crease_angle}: expected degrees in [0, 180]')
 
@@ -176,7 +181,8 @@ class TrainConfig:
     checkpoint_every: int = 100
     """Steps between checkpoints (written atomically; --resume continues from the last)."""
     mesh_resolution: int = 256
-    """Marching-cubes grid resolution of the final mesh."""
+    """Marching-cubes grid resolution of the final mesh (at least: a field whose finest level
+    is finer across the container is meshed at that, up to 512)."""
     max_image_size: int = 0
     """Longest side, in pixels, of the photographs as the run fits them: larger ones are
     reduced as they load (area averaging; cameras and masks follow), which lowers the memory

@@ -3,7 +3,8 @@
 The scene (container, ambient light, first camera, integrator, and the printed board
 of a capture with its radiance beside the XML) is
 :func:`reneus_mi.data.scene_xml.write_scene`'s. The ``reneus`` integrator's
-settings start from ``--preset``; ``--set model.render.max_depth=3`` changes one,
+settings start from ``--preset``; a hash grid's finest level follows the photographs'
+pixel footprint at the specimen where that is finer; ``--set model.render.max_depth=3`` changes one,
 by its dotted path in :class:`reneus_mi.config.ReconstructionConfig`, typed and
 checked as the configuration declares it, and written under its XML name.
 """
@@ -29,6 +30,19 @@ def _literal(text: str) -> bool | int | float | str:
         except ValueError:
             pass
     return text
+
+
+def footprint_settings(field, ds, changes: dict) -> dict:
+    """The field's settings that follow the photographs: a hash grid's finest level at least
+    the pixel footprint at the specimen (:meth:`HashGridFieldConfig.for_footprint`), unless
+    ``--set`` gave it; as integrator properties."""
+    from reneus_mi.fields.hashgrid import HashGridFieldConfig
+    if not isinstance(field, HashGridFieldConfig) or 'model.field.finest_resolution' in changes \
+            or ds.container is None:
+        return {}
+    _, radius = ds.normalization()
+    finest = field.for_footprint(ds.pixel_footprint() / radius).finest_resolution
+    return {'field_finest_resolution': finest} if finest != field.finest_resolution else {}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
             from reneus_mi.config import with_settings
             from reneus_mi.plugins.reneus import xml_properties
             from reneus_mi.presets import preset
-            _, changes = with_settings(preset(args.preset), args.settings)
+            cfg, changes = with_settings(preset(args.preset), args.settings)
             settings = {'preset': args.preset, **xml_properties(changes)}
         else:
             settings = {}
@@ -89,6 +103,8 @@ def main(argv: list[str] | None = None) -> int:
                           + (' and renders plain NeuS (mode neus)' if args.integrator == 'reneus' else ''))
             if args.integrator == 'reneus':
                 settings['mode'] = 'neus'
+        if args.integrator == 'reneus':
+            settings.update(footprint_settings(cfg.model.field, ds, changes))
         write_scene(ds, args.output, integrator=args.integrator, board=args.board == 'scene',
                     overwrite=args.overwrite, **settings)
     return 0

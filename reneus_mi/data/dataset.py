@@ -133,6 +133,16 @@ class Dataset:
         raise ReneusError(f"{self.root}: dataset has neither a NeuS scale_mat nor a container "
                          "mesh, so the region to reconstruct is unknown")
 
+    def pixel_footprint(self) -> float:
+        """The world size of one pixel at the centre of the field's sphere, the median over the
+        views (its depth in each camera over the focal length): the finest detail the
+        photographs show of the specimen."""
+        centre, _ = self.normalization()
+        w2c = np.linalg.inv(self.c2w)
+        depth = w2c[:, 2, :3] @ centre + w2c[:, 2, 3]
+        focal = 0.5 * (self.K[:, 0, 0] + self.K[:, 1, 1])
+        return float(np.median(np.abs(depth) / focal))
+
     def validate(self) -> None:
         """Raise ``ValueError`` unless every array has the documented shape and type."""
         n = len(self.images)

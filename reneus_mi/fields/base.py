@@ -79,6 +79,11 @@ class Field:
     def set_step(self, step: int) -> None:
         """Follow the training schedule (e.g. open hash-grid levels); nothing by default."""
 
+    def detail(self) -> float | None:
+        """The size, in the field's frame, of the finest detail the field holds (a hash grid's
+        finest cell); None where nothing bounds it."""
+        return None
+
     def sdf(self, x: mi.Point3f) -> mi.Float:
         return self.geometry(x)[0]
 

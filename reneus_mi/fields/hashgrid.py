@@ -28,6 +28,7 @@ opaque Dr.Jit scalars, so :meth:`HashGridField.set_step` never recompiles.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -44,6 +45,11 @@ from reneus_mi.param_groups import ParamGroup
 # Scale of the SDF head relative to its fan-in initialisation: the residual on
 # the sphere starts at ~1e-3 while every weight still gets a gradient.
 _SDF_HEAD_GAIN = 1e-3
+#: The finest level that follows the photographs' pixel footprint is a multiple of this.
+RESOLUTION_STEP = 32
+#: The finest level the footprint rule chooses at most (the table holds 2^16 entries per
+#: level by default: far finer levels only collide).
+MAX_FINEST = 1024
 
 
 @dataclass
@@ -123,6 +129,15 @@ class HashGridFieldConfig(NeuralFieldConfig):
             return 1.0
         return (self.finest_resolution / self.base_resolution) ** (1.0 / (self.n_levels - 1))
 
+    def for_footprint(self, footprint: float) -> 'HashGridFieldConfig':
+        """This configuration with its finest level at least as fine as ``footprint`` (the size
+        of a pixel at the specimen, in the field's frame, where the grid spans 2), in steps of
+        :data:`RESOLUTION_STEP`, at most :data:`MAX_FINEST`: large photographs get the detail
+        they show, small ones keep the preset's grid."""
+        want = RESOLUTION_STEP * math.ceil(2.0 / footprint / RESOLUTION_STEP)
+        return dataclasses.replace(self, finest_resolution=int(min(max(self.finest_resolution, want),
+                                                                   MAX_FINEST)))
+
     def open_levels(self, step: int) -> int:
         """Levels open at training step ``step``."""
         return min(self.n_levels, self.levels_start + step // self.level_steps)
@@ -169,6 +184,10 @@ class HashGridField(NeuralField):
         self.sdf_network = nn.pack(sdf, layout='training')
         self.color_network = self._radiance_network()
         self.set_step(cfg.step)
+
+    def detail(self) -> float:
+        """The finest level's cell (the grid spans 2)."""
+        return 2.0 / self.cfg.finest_resolution
 
     # ------------------------------------------------------------ schedule
     def set_step(self, step: int) -> None:

@@ -53,6 +53,9 @@ LIGHTS = ('emitter', 'ambient', 'sh')
 _Y00 = 0.282095
 #: Directions that project an emitter onto the SH basis (Fibonacci sphere).
 _PROJECTION_DIRECTIONS = 4096
+#: Learning rate of the board's log-gains relative to the run's: 1e-2 at the fast preset's
+#: 1e-3, a percent of light per step.
+SHADING_LR_SCALE = 10.0
 
 
 def sh_basis(d: mi.Vector3f) -> list:
@@ -186,6 +189,48 @@ class ContainerPose:
         return M
 
 
+class BoardShading:
+    """The light that reaches the backdrop, as a gain on its emission: a grid of log-gains over
+    its uv square (bilinear), starting at 1.
+
+    The scene's board is its print lit evenly (the capture measures the print away from the
+    container), but under and around a container the photographs show it shaded: the glass
+    passes (1 - R)^2 of the tent's light, focuses some into caustics, and the specimen casts a
+    shadow. Seen from every view through the glass, a board point's gain is one value, so the
+    photographs fix it; without it the field fills the block with fog to darken what it sees
+    there. Every backdrop shape shares the grid through its own uv."""
+
+    NAME = 'board.shading'
+
+    def __init__(self, texels: int, aspect: float):
+        #: Texels along u and v: ``texels`` along the longer side, square texels.
+        self.size = (texels, max(1, round(texels / aspect))) if aspect >= 1 else \
+            (max(1, round(texels * aspect)), texels)
+        self.log_gain = dr.zeros(mi.Float, self.size[0] * self.size[1])
+
+    def gain(self, uv: mi.Point2f, active: mi.Bool) -> mi.Float:
+        w, h = self.size
+        x = dr.clip(uv.x * w - 0.5, 0.0, w - 1.0)
+        y = dr.clip(uv.y * h - 0.5, 0.0, h - 1.0)
+        x0, y0 = mi.UInt32(dr.floor(x)), mi.UInt32(dr.floor(y))
+        x1, y1 = dr.minimum(x0 + 1, w - 1), dr.minimum(y0 + 1, h - 1)
+        fx, fy = x - dr.floor(x), y - dr.floor(y)
+        g = 0.0
+        for xi, yi, wt in ((x0, y0, (1 - fx) * (1 - fy)), (x1, y0, fx * (1 - fy)),
+                           (x0, y1, (1 - fx) * fy), (x1, y1, fx * fy)):
+            g += wt * dr.gather(mi.Float, self.log_gain, yi * w + xi, active)
+        return dr.exp(g)
+
+
+def _uv_aspect(shape) -> float:
+    """World length of a shape's u side over its v side (a rectangle's, or a quad mesh's)."""
+    si = shape.eval_parameterization(mi.Point2f([0.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
+    p = np.array(si.p, np.float64).T
+    if not np.all(np.array(si.is_valid())):
+        return 1.0
+    return float(np.linalg.norm(p[1] - p[0]) / max(np.linalg.norm(p[2] - p[0]), 1e-12))
+
+
 def scene_of(shapes: list) -> mi.Scene:
     """A Mitsuba scene of already loaded ``shapes`` (for ray queries of its own)."""
     return mi.load_dict({'type': 'scene', **{f'shape_{i}': shape for i, shape in enumerate(shapes)}})
@@ -197,7 +242,7 @@ class Surroundings:
 
     def __init__(self, eta: float, shapes: list, emitter: mi.Emitter, *, backdrop: list = (),
                  light: str = 'emitter', pose: bool = False, pivot=(0.0, 0.0, 0.0),
-                 crease_angle: float = CREASE_ANGLE):
+                 crease_angle: float = CREASE_ANGLE, board_texels: int = 0):
         self.eta = mi.Float(eta)
         self.shapes = shapes
         #: The container alone, and the backdrop shapes (None without): see the module docstring.
@@ -209,6 +254,9 @@ class Surroundings:
         self.emitter = emitter
         self.light = None if light == 'emitter' else Light(light, emitter)
         self.pose = ContainerPose(pivot) if pose else None
+        self.shading = None
+        if backdrop and board_texels:
+            self.shading = BoardShading(board_texels, _uv_aspect(backdrop[0]))
 
     @property
     def uniform(self) -> bool:
@@ -256,6 +304,8 @@ class Surroundings:
             out.update(self.pose.params())
         if self.light is not None:
             out[self.light.name] = self.light.coefficients
+        if self.shading is not None:
+            out[BoardShading.NAME] = self.shading.log_gain
         return out
 
     def ambient(self, d: mi.Vector3f) -> mi.Color3f:
@@ -271,7 +321,17 @@ class Surroundings:
             return L
         si = self.backdrop.ray_intersect(mi.Ray3f(o, d), active)
         hit = si.is_valid()
-        return dr.select(hit, si.emitter(self.backdrop).eval(si, hit), L)
+        emitted = si.emitter(self.backdrop).eval(si, hit)
+        if self.shading is not None:
+            emitted *= self.shading.gain(si.uv, hit)
+        return dr.select(hit, emitted, L)
+
+    def model_groups(self, learning_rate: float) -> list[ParamGroup]:
+        """What is fitted with the field as part of the model: the board's shading (its
+        learning rate :data:`SHADING_LR_SCALE` times the run's)."""
+        if self.shading is None:
+            return []
+        return [ParamGroup('board', (BoardShading.NAME,), learning_rate * SHADING_LR_SCALE)]
 
     def param_groups(self, refine) -> list[ParamGroup]:
         """The groups that ``refine`` (a :class:`~reneus_mi.config.RefineConfig`) asks for: the

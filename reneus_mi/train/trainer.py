@@ -42,6 +42,9 @@ from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.data.images import write_image
 from reneus_mi.variant import is_cuda
 
+#: Finest final mesh that following the field's detail chooses (a 512^3 grid and its
+#: clean-up peak at about 3 GB).
+MAX_AUTO_MESH_RESOLUTION = 512
 #: Rays per kernel launch when rendering a whole view.
 RENDER_CHUNK = 1 << 14
 #: Mask margin while the container's pose is refined, as a fraction of the container's size in
@@ -152,10 +155,11 @@ class Trainer:
 
     def _setup_optimizer(self) -> None:
         cfg = self.cfg
-        # What is fitted, in the groups its owners declare: the field's, and the surroundings'
-        # that the run refines (held until refine.after).
+        # What is fitted, in the groups its owners declare: the field's, the board's shading,
+        # and the surroundings' that the run refines (held until refine.after).
         refined = self.surroundings.param_groups(cfg.refine)
-        self.groups = self.field.param_groups(cfg.learning_rate) + refined
+        self.groups = (self.field.param_groups(cfg.learning_rate)
+                       + self.surroundings.model_groups(cfg.learning_rate) + refined)
         self.refined = tuple(name for group in refined for name in group.keys)
         params = mi.traverse(self.scene)
         keys = self.integrator.traverse_keys(params)
@@ -340,8 +344,20 @@ class Trainer:
         write_mesh(self.surroundings.posed_mesh(), path)
         return path
 
+    def mesh_resolution(self) -> int:
+        """The final mesh's grid: ``mesh_resolution``, or the field's finest detail across the
+        container where that is finer (a hash grid fitted to large photographs), up to
+        :data:`MAX_AUTO_MESH_RESOLUTION`."""
+        resolution = self.cfg.mesh_resolution
+        detail = self.field.detail()
+        if detail:
+            lo, hi = self.frame.field_box()
+            need = int(np.ceil(float(np.max(hi - lo)) / detail))
+            resolution = max(resolution, min(need, MAX_AUTO_MESH_RESOLUTION))
+        return resolution
+
     def write_mesh(self, path: str, resolution: int | None = None):
-        mesh = field_mesh(self.field, self.frame, resolution or self.cfg.mesh_resolution,
+        mesh = field_mesh(self.field, self.frame, resolution or self.mesh_resolution(),
                           self.cfg.postprocess, self.container)
         write_mesh(mesh, path)
         return mesh

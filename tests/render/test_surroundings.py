@@ -85,13 +85,15 @@ def test_identity_pose_renders_the_scene_as_loaded():
 @pytest.mark.parametrize('key, i, with_board', [
     ('container.eta', 0, False), ('container.translation', 0, False), ('container.translation', 1, False),
     ('container.rotation', 2, False), ('container.log_scale', 0, False), ('light.radiance', 1, False),
-    ('container.eta', 0, True), ('container.translation', 0, True)])
+    ('container.eta', 0, True), ('container.translation', 0, True),
+    ('board.shading', 4 * 8 + 4, True), ('board.shading', 3 * 8 + 4, True)])
 def test_render_gradients_of_surroundings_match_finite_differences(key, i, with_board):
     # Interior derivatives, pixel by pixel: the rays keep their pixels, the glass moves under
     # them; the samples of each inside segment follow its ends. Coarse samples only (fine ones
     # are drawn anew where the surface moves, which central differences see and AD does not).
     # With the board under the block, the refracted rays also move over its print.
-    scene = _refinable_scene(16, max_depth=2, n_fine=0, with_board=with_board)
+    # The board's shading on 8 x 8 texels, each under many pixels.
+    scene = _refinable_scene(16, max_depth=2, n_fine=0, with_board=with_board, board_texels=8)
     integrator = scene.integrator()
     ray = pixel_rays(scene)
     array = integrator.params()[key]
@@ -116,7 +118,8 @@ def test_render_gradients_of_surroundings_match_finite_differences(key, i, with_
     agree = np.abs(ad - fd) < 0.01 + 0.05 * np.abs(fd)
     assert agree.mean() > (0.95 if with_board else 0.99), (key, i, agree.mean())
     assert np.abs(ad - fd)[agree].sum() < 0.02 * np.abs(fd)[agree].sum(), key
-    assert np.abs(fd).max() > 0.3, (key, np.abs(fd).max())
+    # A texel's gain moves a pixel by the print's radiance there through the glass (black print: little).
+    assert np.abs(fd).max() > (0.03 if key == 'board.shading' else 0.3), (key, np.abs(fd).max())
 
 
 # ------------------------------------------------------------ smooth glass
