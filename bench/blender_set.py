@@ -375,9 +375,8 @@ def write_json(path: str, data: dict) -> None:
     _atomic_bytes(path, (json.dumps(data, indent=2) + '\n').encode())
 
 
-def read_pixels(path: str) -> np.ndarray:
-    """An 8-bit image file as (H,W,4) uint8, top row first (Blender's loader: the stored
-    bytes, no colour conversion)."""
+def read_float_pixels(path: str) -> np.ndarray:
+    """An image file as Blender's loader holds it: (H,W,4) float32, top row first."""
     img = bpy.data.images.load(path)
     try:
         w, h = img.size
@@ -385,7 +384,13 @@ def read_pixels(path: str) -> np.ndarray:
         img.pixels.foreach_get(px)
     finally:
         bpy.data.images.remove(img)
-    return np.round(px.reshape(h, w, 4)[::-1] * 255).astype(np.uint8)
+    return px.reshape(h, w, 4)[::-1]
+
+
+def read_pixels(path: str) -> np.ndarray:
+    """An 8-bit image file as (H,W,4) uint8, top row first (Blender's loader: the stored
+    bytes, no colour conversion)."""
+    return np.round(read_float_pixels(path) * 255).astype(np.uint8)
 
 
 def write_jpeg(path: str, rgb: np.ndarray, quality: int) -> None:
