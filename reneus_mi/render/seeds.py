@@ -13,9 +13,23 @@ import mitsuba as mi
 PIXELS, JITTER = 0, 1
 
 
+#: 2^64: PCG32's state is a 64-bit integer.
+_MASK = (1 << 64) - 1
+
+
 def step_seed(seed: int, step: int, stream: int) -> int:
-    """A 64-bit PCG32 initial state for one use of one step of a run."""
-    return ((seed & 0xFFFFFF) << 40) ^ ((step & 0xFFFFFFFF) << 4) ^ stream
+    """A 64-bit PCG32 initial state for one use of one step of a run: (seed, step, stream)
+    packed into 64 bits, then mixed (SplitMix64's finaliser).
+
+    The mixing matters. PCG32 seeds lane i at a·initstate + (a + 1)(2i + 1): initial states
+    a small multiple apart (the packed value alone) put whole batches on the same states,
+    lane-shifted: step 3 drew 1007 of step 0's 1024 pixels, and 2000 steps of 1024 rays met
+    37,081 distinct pixels of a 960x640 capture (1.8 % of the draws), so runs fitted a few
+    thousand pixels, over and over, as the set drifted."""
+    z = (((seed & 0xFFFFFF) << 40) ^ ((step & 0xFFFFFFFF) << 4) ^ stream) & _MASK
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK
+    return z ^ (z >> 31)
 
 
 def opaque_seed(seed: int) -> mi.UInt64:
