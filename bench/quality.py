@@ -3,6 +3,8 @@
     python bench/quality.py [--data /work/data/blender_set] [--scenes stool knot]
                             [--variants box nobox] [--configs fast:2,5,10 small:10]
                             [--runs runs/quality] [--doc docs] [--fresh | --remesh | --rewrite]
+    python bench/quality.py --captures ant_small [beetle_large ...] [--capture-data /work/data/bcap]
+                            [--configs ...] [--runs ...] [--doc ...] [--fresh | --remesh | --rewrite]
 
 The data are the Blender Cycles set of ``bench/blender_set.py`` (``DATA/SCENE/box/``,
 ``nobox/``, the ground truth ``DATA/SCENE/gt.ply`` outside both). For each scene, variant
@@ -26,6 +28,27 @@ benchmark continues where it stopped; ``--fresh`` runs everything again, ``--rem
 and evaluates the finished runs again (a change of the clean-up, measured without training),
 ``--rewrite`` writes the document again from the record alone. A smoke run:
 ``--scenes stool --configs fast:0.3 --doc /tmp/quality``.
+
+Capture rows (``--captures NAME ...``; then only they run) take the museum path from
+photographs: the captures of ``bench/blender_capture.py`` (``CAPTURES/NAME/photos/``, the JPEGs
+and ``capture.json``; ``CAPTURES/NAME/truth/``, ``truth.json`` and ``specimen.ply`` in the
+board's frame, millimetres). Their variant is ``capture``, their scene the capture's name, and
+each runs::
+
+    python -m reneus_mi.capture CAPTURES/NAME/photos -o RUNS/NAME/capture/dataset --quiet
+    python -m reneus_mi.scene RUNS/NAME/capture/dataset -o RUNS/NAME/capture/scene_PRESET.xml \\
+        --preset PRESET --overwrite
+    python -m reneus_mi.optimize scene_PRESET.xml -o RUN --max-minutes M --quiet
+    python -m reneus_mi.evaluate RUN/mesh.ply CAPTURES/NAME/truth/specimen.ply --json RUN/evaluate.json \\
+        --overwrite --threshold 0.1 [--postprocess P]
+
+the first only where the dataset has no ``transforms.json`` (once per capture; ``--fresh``
+makes it again; the first row's wall time includes it). They record Chamfer-L1 in millimetres
+(evaluate's x100 over 100), the F-score at 0.1 mm, the size of the photographs (truth.json)
+and the training PSNR's curve from ``RUN/log.jsonl``: its mean over 100 steps, that mean's best
+(and step) and its end, and the share of the run's steps during which it lay more than 1 dB
+below its best so far; ``DOC/quality/NAME_capture_PRESET_Mmin_psnr.png`` plots the PSNR per
+step and its mean. Their pictures look down on the board (its z points into the table).
 """
 from __future__ import annotations
 
@@ -57,10 +80,20 @@ GRACE_S = 900
 #: Share of the machine's CPU taken by other processes above which a row is marked as run on
 #: a loaded machine.
 LOADED = 0.1
+#: The variant of the capture rows.
+CAPTURE = 'capture'
+#: F-score distance of the capture rows, in their units (millimetres).
+CAPTURE_THRESHOLD_MM = 0.1
+#: Steps of the moving mean of a capture row's PSNR curve, and the drop below that mean's best
+#: so far (dB) whose steps the row counts.
+PSNR_WINDOW, PSNR_DROP = 100, 1.0
+#: Size of the PSNR plot, inches at 100 dpi.
+PLOT = (4.8, 2.4)
 #: What a row keeps in DOC/quality.json (the run folder is this machine's, not kept).
-RECORDED = ('scene', 'variant', 'preset', 'minutes', 'chamfer', 'fscore', 'postprocess', 'components',
-            'steps', 'train_s', 'psnr', 'wall_s', 'others', 'status', 'reused', 'remeshed', 'picture',
-            'date', 'commit', 'machine')
+RECORDED = ('scene', 'variant', 'preset', 'minutes', 'chamfer', 'chamfer_mm', 'fscore', 'threshold',
+            'postprocess', 'components', 'steps', 'train_s', 'psnr', 'psnr_best', 'psnr_best_step', 'psnr_end',
+            'psnr_below_1db', 'photos', 'wall_s', 'others', 'status', 'reused', 'remeshed', 'picture',
+            'psnr_plot', 'date', 'commit', 'machine')
 
 
 def parse_configs(items) -> list[tuple[str, float]]:
@@ -145,14 +178,18 @@ def count_components(mesh_path: str) -> int:
 
 
 def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str, minutes: float,
-            fresh: bool, postprocess: str | None, remesh: bool = False) -> dict:
-    """One row: scene file, run, evaluation (or the reason there is none)."""
+            fresh: bool, postprocess: str | None, remesh: bool = False, make_data: list[str] | None = None,
+            evaluate_args: tuple[str, ...] = ()) -> dict:
+    """One row: scene file, run, evaluation (or the reason there is none). ``make_data``: the
+    command that writes the dataset ``data`` (a capture's), run first where ``data`` holds no
+    ``transforms.json``; ``evaluate_args``: more options of evaluate's."""
     row = {'scene': scene, 'variant': variant, 'preset': preset, 'minutes': minutes}
     folder = os.path.join(runs, scene, variant)
     run = os.path.join(folder, _tag(preset, minutes))
     evaluation = os.path.join(run, 'evaluate.json')
     row['run'] = run
-    if not os.path.isfile(os.path.join(data, 'transforms.json')):
+    made = os.path.isfile(os.path.join(data, 'transforms.json'))
+    if not made and make_data is None:
         return {**row, 'status': f'skipped: no dataset at {data}'}
     if not os.path.isfile(gt):
         return {**row, 'status': f'skipped: no ground truth at {gt}'}
@@ -167,7 +204,7 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
             with open(os.path.join(folder, f'{_tag(preset, minutes)}.log'), 'a') as log:
                 for cmd in ([sys.executable, '-m', 'reneus_mi.extract', os.path.join(run, 'checkpoint.npz'), '-o',
                              os.path.join(run, 'mesh.ply'), '--resolution', str(resolution), '--overwrite'],
-                            _evaluate(run, gt, evaluation, postprocess)):
+                            _evaluate(run, gt, evaluation, postprocess, evaluate_args)):
                     failure = _run(cmd, log, GRACE_S)
                     if failure:
                         return {**row, 'status': f'failed: {failure}', **_read(run, None)}
@@ -182,8 +219,13 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
     with open(os.path.join(folder, f'{_tag(preset, minutes)}.log'), 'w') as log:
         steps = [[py, '-m', 'reneus_mi.scene', data, '-o', xml, '--preset', preset, '--overwrite'],
                  [py, '-m', 'reneus_mi.optimize', xml, '-o', run, '--max-minutes', f'{minutes:g}', '--quiet'],
-                 _evaluate(run, gt, evaluation, postprocess)]
+                 _evaluate(run, gt, evaluation, postprocess, evaluate_args)]
         timeouts = [GRACE_S, 60 * minutes + GRACE_S, GRACE_S]
+        if not made:
+            # A dataset this benchmark began and did not finish: its folder is ours too.
+            shutil.rmtree(data, ignore_errors=True)
+            steps.insert(0, make_data)
+            timeouts.insert(0, GRACE_S)
         start, busy, own = time.perf_counter(), busy_seconds(), children_seconds()
         for cmd, timeout in zip(steps, timeouts):
             failure = _run(cmd, log, timeout)
@@ -203,9 +245,10 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
     return {**row, **_read(run, evaluation)}
 
 
-def _evaluate(run: str, gt: str, evaluation: str, postprocess: str | None) -> list[str]:
+def _evaluate(run: str, gt: str, evaluation: str, postprocess: str | None,
+              evaluate_args: tuple[str, ...] = ()) -> list[str]:
     return [sys.executable, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation,
-            '--overwrite', *(['--postprocess', postprocess] if postprocess else [])]
+            '--overwrite', *evaluate_args, *(['--postprocess', postprocess] if postprocess else [])]
 
 
 def _read(run: str, evaluation: str | None) -> dict:
@@ -220,25 +263,108 @@ def _read(run: str, evaluation: str | None) -> dict:
     if evaluation:
         with open(evaluation) as f:
             e = json.load(f)
-        out.update(chamfer=e['chamfer'], fscore=e.get('fscore'), postprocess=e.get('postprocess'),
-                   status='ok')
+        out.update(chamfer=e['chamfer'], fscore=e.get('fscore'), threshold=e.get('threshold'),
+                   postprocess=e.get('postprocess'), status='ok')
     if os.path.isfile(mesh):
         # Not evaluate's 'components': it counts after its clean-up (one, for 'largest').
         out['components'] = count_components(mesh)
     return out
 
 
+# --- capture rows ---------------------------------------------------------------------------
+
+def capture_job(captures: str, name: str, runs: str) -> dict:
+    """What run_one needs for a capture's rows: its dataset (made by ``reneus_mi.capture``
+    from the photographs), its truth and evaluate's threshold in millimetres."""
+    data = os.path.join(runs, name, CAPTURE, 'dataset')
+    return {'data': data, 'gt': os.path.join(captures, name, 'truth', 'specimen.ply'), 'scene': name,
+            'variant': CAPTURE, 'evaluate_args': ('--threshold', f'{CAPTURE_THRESHOLD_MM:g}'),
+            'make_data': [sys.executable, '-m', 'reneus_mi.capture', os.path.join(captures, name, 'photos'),
+                          '-o', data, '--quiet']}
+
+
+def photo_size(truth: str) -> str | None:
+    """``WIDTHxHEIGHT`` of a capture's photographs (its truth.json), None without it."""
+    try:
+        with open(truth) as f:
+            t = json.load(f)
+        return f"{t['width']}x{t['height']}"
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def psnr_curve(entries: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Steps and PSNR of a run's log, the PSNR's mean over the last PSNR_WINDOW steps and where
+    that mean counts: once a whole window has run (at the last step in a shorter run)."""
+    # A resumed run logs the steps after its checkpoint again: the later entry counts.
+    logged = {int(e['iteration']): float(e['psnr']) for e in entries
+              if isinstance(e.get('psnr'), (int, float)) and e['psnr'] == e['psnr']}
+    steps = np.array(sorted(logged), dtype=int)
+    psnr = np.array([logged[k] for k in steps], dtype=float)
+    if not len(steps):
+        return steps, psnr, psnr, np.zeros(0, bool)
+    cumulative = np.concatenate([[0.0], np.cumsum(psnr)])
+    first = np.searchsorted(steps, steps - PSNR_WINDOW, side='right')
+    smoothed = (cumulative[1:] - cumulative[first]) / (np.arange(1, len(steps) + 1) - first)
+    full = steps >= steps[0] + PSNR_WINDOW - 1
+    full[-1] = True
+    return steps, psnr, smoothed, full
+
+
+def psnr_figures(run: str) -> dict:
+    """The row's PSNR curve (:func:`psnr_curve`): the mean's best and its step, its end, and the
+    share of the run's steps during which it lay more than PSNR_DROP below its best so far."""
+    from reneus_mi.train.run_folder import RunFolder
+    steps, _, smoothed, full = psnr_curve(RunFolder(run).read_log())
+    if not full.any():
+        return {}
+    # Each logged step stands for the steps since the one logged before it.
+    weight = np.diff(steps, prepend=steps[0] - 1)[full]
+    mean = smoothed[full]
+    below = mean < np.maximum.accumulate(mean) - PSNR_DROP
+    best = int(np.argmax(mean))
+    return {'psnr_best': float(mean[best]), 'psnr_best_step': int(steps[full][best]), 'psnr_end': float(mean[-1]),
+            'psnr_below_1db': float(weight[below].sum() / (steps[-1] - steps[0] + 1))}
+
+
+def plot_psnr(run: str, out: str) -> bool:
+    """Plot the PSNR of each logged step and its mean over PSNR_WINDOW steps; False when the
+    run logged none."""
+    from matplotlib.figure import Figure
+    from reneus_mi.train.run_folder import RunFolder
+    steps, psnr, smoothed, full = psnr_curve(RunFolder(run).read_log())
+    if not len(steps):
+        return False
+    fig = Figure(figsize=PLOT, dpi=100, layout='tight')
+    ax = fig.subplots()
+    ax.plot(steps, psnr, color='0.75', linewidth=0.6, label='PSNR')
+    ax.plot(steps[full], smoothed[full], color='C0', linewidth=1.4, label=f'mean of {PSNR_WINDOW} steps')
+    ax.plot(steps[full], np.maximum.accumulate(smoothed[full]) - PSNR_DROP, color='C3', linewidth=0.8,
+            linestyle='--', label=f'best so far - {PSNR_DROP:g} dB')
+    best = np.argmax(smoothed[full])  # marked: a run shorter than the window has no line
+    ax.plot(steps[full][best], smoothed[full][best], 'o', color='C0', markersize=4)
+    ax.set_xlabel('step')
+    ax.set_ylabel('PSNR (dB)')
+    ax.legend(fontsize=7, loc='lower right')
+    ax.grid(alpha=0.3)
+    tmp = out + '.tmp.png'
+    fig.savefig(tmp)
+    os.replace(tmp, out)
+    return True
+
+
 # --- pictures -------------------------------------------------------------------------------
 
-def _look_at(eye, target) -> np.ndarray:
+def _look_at(eye, target, up: float = 1.0) -> np.ndarray:
     import mitsuba as mi
     return mi.ScalarTransform4f().look_at(origin=list(map(float, eye)), target=list(map(float, target)),
-                                         up=[0.0, 0.0, 1.0])
+                                         up=[0.0, 0.0, up])
 
 
-def picture(mesh_path: str, gt_path: str, out: str) -> None:
+def picture(mesh_path: str, gt_path: str, out: str, up: float = 1.0) -> None:
     """The mesh (left) beside the ground truth (right), grey, from one oblique camera that
-    frames the ground truth."""
+    frames the ground truth, above it and lit from above. ``up``: the sign of z that points up
+    (-1 in a capture's board frame, whose z points into the table)."""
     import mitsuba as mi
     from reneus_mi.errors import ReneusError
     from reneus_mi.geometry.mesh import load_mesh
@@ -247,7 +373,7 @@ def picture(mesh_path: str, gt_path: str, out: str) -> None:
     gt = load_mesh(gt_path, 'ground-truth mesh')
     centre = gt.bounds.mean(axis=0)
     radius = float(np.linalg.norm(gt.vertices - centre, axis=1).max())
-    direction = np.array([1.0, -1.4, 0.9]) / np.linalg.norm([1.0, -1.4, 0.9])
+    direction = np.array([1.0, -1.4, 0.9 * up]) / np.linalg.norm([1.0, -1.4, 0.9])
     distance = 3.0 * radius
     fov = float(np.degrees(2 * np.arcsin(1.05 * radius / distance)))
     halves = []
@@ -258,12 +384,12 @@ def picture(mesh_path: str, gt_path: str, out: str) -> None:
             mesh = None
         scene = {'type': 'scene', 'integrator': {'type': 'path', 'max_depth': 3},
                  'sensor': {'type': 'perspective', 'fov': fov,
-                            'to_world': _look_at(centre + distance * direction, centre),
+                            'to_world': _look_at(centre + distance * direction, centre, up),
                             'film': {'type': 'hdrfilm', 'width': PICTURE, 'height': PICTURE,
                                      'rfilter': {'type': 'gaussian'}},
                             'sampler': {'type': 'independent', 'sample_count': 64}},
                  'sky': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': 0.35}},
-                 'sun': {'type': 'directional', 'direction': [-0.4, 0.7, -1.0],
+                 'sun': {'type': 'directional', 'direction': [-0.4, 0.7, -1.0 * up],
                          'irradiance': {'type': 'rgb', 'value': 2.2}}}
         if mesh is not None:
             m = mi.Mesh('mesh', len(mesh.vertices), len(mesh.faces))
@@ -321,8 +447,10 @@ def commit(doc: str) -> str:
     def git(*args):
         return subprocess.run(['git', '-C', ROOT, *args], capture_output=True, text=True).stdout.strip()
     head = git('rev-parse', '--short', 'HEAD') or 'unknown'
+    inside = os.path.relpath(os.path.abspath(doc), ROOT)
+    # git refuses (and prints nothing) a pathspec outside the tree, e.g. --doc /tmp/quality.
     changed = git('status', '--porcelain', '--untracked-files=no', '--', '.',
-                  f':(exclude){os.path.relpath(os.path.abspath(doc), ROOT)}')
+                  *([] if inside == '..' or inside.startswith('..' + os.sep) else [f':(exclude){inside}']))
     return head + ('+' if changed else '')
 
 
@@ -330,6 +458,23 @@ def commit(doc: str) -> str:
 
 def _fmt(value, spec: str) -> str:
     return '' if value is None or value != value else format(value, spec)
+
+
+def _status(r: dict) -> str:
+    """A row's status, with whether it was an earlier run and ran on a loaded machine."""
+    return (r['status'] + (' (earlier run' + (', meshed again' if r.get('remeshed') else '') + ')'
+                           if r.get('reused') else '')
+            + (', **loaded machine**' if r.get('others', 0) > LOADED else ''))
+
+
+def _link(r: dict, key: str) -> str:
+    return f"[png]({r[key]})" if r.get(key) else ''
+
+
+def _joined(rows: list[dict], key: str) -> str:
+    """The values of ``key`` among ``rows``, e.g. their evaluate clean-up; '-' for none."""
+    return ', '.join(sorted({format(r[key], 'g') if isinstance(r[key], float) else r[key]
+                             for r in rows if r.get(key)})) or '-'
 
 
 def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: float) -> str:
@@ -342,6 +487,10 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
     letter = {m: chr(ord('A') + i) for i, m in enumerate(machines)} if len(machines) > 1 else {}
     named = (f"Machines (column \"ran\"): {'; '.join(f'{letter[m]}: {m}' for m in machines)}" if letter
              else f'Machine: {machines[0]}')
+
+    def ran(r):
+        return f"{r.get('date', '')} {r.get('commit', '')} {letter.get(machine_of(r), '')}"
+
     lines = ['# Reconstruction quality on a second renderer\'s photographs', '',
              f'Written by `{command}` on {started["date"]} ({minutes:.0f} min). Rows it did not run are '
              'kept from earlier invocations (`quality.json`); column "ran" says when and at which commit '
@@ -351,31 +500,41 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
              'machine** and is marked so (blank: not measured).', '']
     if smoke:
         lines += ['**Smoke rows**: budgets under 2 minutes say nothing about quality.', '']
-    lines += ['Data: `bench/blender_set.py` (Blender Cycles, a glass block IOR 1.45 exported by '
-              "Blender itself, constant world 0.8, 48 views at 128 px; each scene's `scene.json` "
-              'says how its block file was written). Each row is the README\'s path, in subprocesses: '
-              '`python -m reneus_mi.scene DATA -o scene.xml --preset P` (without the block it writes a plain '
-              'NeuS scene), '
-              '`python -m reneus_mi.optimize scene.xml -o RUN --max-minutes M --quiet`, '
-              '`python -m reneus_mi.evaluate RUN/mesh.ply GT --json ...`. Chamfer-L1 x100 is '
-              "evaluate's, of the run's mesh (`--postprocess "
-              f"{', '.join(sorted({r['postprocess'] for r in rows if r.get('postprocess')})) or '-'}`); "
-              "components are those of the run's `mesh.ply` as the run wrote it. "
-              'Pictures: the mesh (left) beside the ground truth (right).', '']
+    set_rows = [r for r in rows if r['variant'] != CAPTURE]
+    if set_rows:
+        lines += _set_lines(set_rows, ran)
+    captures = [r for r in rows if r['variant'] == CAPTURE]
+    if captures:
+        lines += _capture_lines(captures, ran)
+    os.makedirs(doc, exist_ok=True)
+    from reneus_mi.io import atomic_open
+    path = os.path.join(doc, 'quality.md')
+    with atomic_open(path, 'w') as f:
+        f.write('\n'.join(lines))
+    return path
+
+
+def _set_lines(rows: list[dict], ran) -> list[str]:
+    """The document's part on the rows of the Blender set: a table per scene, issue 15's test."""
+    lines = ['Data: `bench/blender_set.py` (Blender Cycles, a glass block IOR 1.45 exported by '
+             "Blender itself, constant world 0.8, 48 views at 128 px; each scene's `scene.json` "
+             'says how its block file was written). Each row is the README\'s path, in subprocesses: '
+             '`python -m reneus_mi.scene DATA -o scene.xml --preset P` (without the block it writes a plain '
+             'NeuS scene), '
+             '`python -m reneus_mi.optimize scene.xml -o RUN --max-minutes M --quiet`, '
+             '`python -m reneus_mi.evaluate RUN/mesh.ply GT --json ...`. Chamfer-L1 x100 is '
+             f"evaluate's, of the run's mesh (`--postprocess {_joined(rows, 'postprocess')}`); "
+             "components are those of the run's `mesh.ply` as the run wrote it. "
+             'Pictures: the mesh (left) beside the ground truth (right).', '']
     for scene in dict.fromkeys(r['scene'] for r in rows):
         lines += [f'## {scene}', '', '| variant | preset | budget | Chamfer x100 | components | steps | '
                   'PSNR | others | status | ran | picture |',
                   '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
         for r in (r for r in rows if r['scene'] == scene):
-            pic = f"[png]({r['picture']})" if r.get('picture') else ''
-            comp = _fmt(r.get('components'), 'd')
-            status = (r['status'] + (' (earlier run' + (', meshed again' if r.get('remeshed') else '') + ')'
-                                     if r.get('reused') else '')
-                      + (', **loaded machine**' if r.get('others', 0) > LOADED else ''))
             lines.append(f"| {r['variant']} | {r['preset']} | {r['minutes']:g} min | "
-                         f"{_fmt(r.get('chamfer'), '.3f')} | {comp} | {_fmt(r.get('steps'), 'd')} | "
-                         f"{_fmt(r.get('psnr'), '.2f')} | {_fmt(r.get('others'), '.0%')} | {status} | "
-                         f"{r.get('date', '')} {r.get('commit', '')} {letter.get(machine_of(r), '')} | {pic} |")
+                         f"{_fmt(r.get('chamfer'), '.3f')} | {_fmt(r.get('components'), 'd')} | "
+                         f"{_fmt(r.get('steps'), 'd')} | {_fmt(r.get('psnr'), '.2f')} | "
+                         f"{_fmt(r.get('others'), '.0%')} | {_status(r)} | {ran(r)} | {_link(r, 'picture')} |")
         lines.append('')
     verdicts = criterion(rows)
     if verdicts:
@@ -388,12 +547,38 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
             lines.append(f"| {v['scene']} | {v['box']:.3f} | {v['nobox']:.3f} | {v['ratio']:.2f} | "
                          f"{v['components']} | {v['met']} |")
         lines.append('')
-    os.makedirs(doc, exist_ok=True)
-    from reneus_mi.io import atomic_open
-    path = os.path.join(doc, 'quality.md')
-    with atomic_open(path, 'w') as f:
-        f.write('\n'.join(lines))
-    return path
+    return lines
+
+
+def _capture_lines(rows: list[dict], ran) -> list[str]:
+    """The document's part on the capture rows: one table."""
+    threshold = _joined(rows, 'threshold')
+    lines = ['## Captures: the museum path from photographs', '',
+             'Data: `bench/blender_capture.py` (Blender Cycles photographs, JPEG with lens distortion, of '
+             'a specimen in a glass block on a printed ChArUco board; the truth in the board\'s frame, '
+             'millimetres). Each row, in subprocesses: `python -m reneus_mi.capture PHOTOS -o DATASET --quiet` '
+             "(once per capture, into the benchmark's runs folder), "
+             '`python -m reneus_mi.scene DATASET -o scene.xml --preset P --overwrite`, '
+             '`python -m reneus_mi.optimize scene.xml -o RUN --max-minutes M --quiet`, '
+             f'`python -m reneus_mi.evaluate RUN/mesh.ply TRUTH/specimen.ply --json ... --threshold {threshold} '
+             f"--postprocess {_joined(rows, 'postprocess')}`. Chamfer-L1 in mm (evaluate's x100 / 100), "
+             f'F-score at {threshold} mm; pieces: the components of the run\'s `mesh.ply`. PSNR: the '
+             f"training PSNR's mean over {PSNR_WINDOW} steps: its best (at step), its end, and the share of "
+             f'the run\'s steps during which it lay more than {PSNR_DROP:g} dB below its best so far. '
+             'Pictures: the mesh (left) beside the truth (right), seen from above the board.', '',
+             f'| capture | photographs | preset | budget | Chamfer-L1 mm | F@{threshold} mm | pieces | steps | '
+             f'PSNR best (step) | PSNR end | below best - {PSNR_DROP:g} dB | others | status | ran | picture | '
+             'PSNR plot |',
+             '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+    for r in rows:
+        best = (f"{r['psnr_best']:.2f} ({r['psnr_best_step']})" if r.get('psnr_best') is not None else '')
+        lines.append(f"| {r['scene']} | {r.get('photos', '')} | {r['preset']} | {r['minutes']:g} min | "
+                     f"{_fmt(r.get('chamfer_mm'), '.3f')} | {_fmt(r.get('fscore'), '.3f')} | "
+                     f"{_fmt(r.get('components'), 'd')} | {_fmt(r.get('steps'), 'd')} | {best} | "
+                     f"{_fmt(r.get('psnr_end'), '.2f')} | {_fmt(r.get('psnr_below_1db'), '.0%')} | "
+                     f"{_fmt(r.get('others'), '.0%')} | {_status(r)} | {ran(r)} | {_link(r, 'picture')} | "
+                     f"{_link(r, 'psnr_plot')} |")
+    return lines + ['']
 
 
 def criterion(rows: list[dict]) -> list[dict]:
@@ -416,12 +601,67 @@ def criterion(rows: list[dict]) -> list[dict]:
     return out
 
 
+def set_jobs(args) -> list[dict]:
+    """run_one's arguments for each scene and variant of the Blender set."""
+    if not os.path.isdir(args.data):
+        raise SystemExit(f'error: {args.data}: no such folder; make the set with bench/blender_set.py')
+    scenes = args.scenes or sorted(s for s in os.listdir(args.data)
+                                   if os.path.isfile(os.path.join(args.data, s, 'gt.ply')))
+    if not scenes:
+        raise SystemExit(f'error: {args.data}: no scenes (folders with a gt.ply)')
+    return [{'data': os.path.join(args.data, scene, variant), 'gt': os.path.join(args.data, scene, 'gt.ply'),
+             'scene': scene, 'variant': variant} for scene in scenes for variant in args.variants]
+
+
+def capture_jobs(args) -> list[dict]:
+    """run_one's arguments for each capture (:func:`capture_job`); with ``--fresh`` their
+    datasets are removed here, so that the first row of each makes it again."""
+    if args.scenes:
+        raise SystemExit('error: --captures runs capture rows only; run --scenes in another invocation')
+    jobs = []
+    for name in args.captures:
+        if not os.path.isdir(os.path.join(args.capture_data, name, 'photos')):
+            raise SystemExit(f'error: {os.path.join(args.capture_data, name)}: no photos/ folder; make the '
+                             'capture with bench/blender_capture.py')
+        jobs.append(capture_job(args.capture_data, name, args.runs))
+        if args.fresh:
+            shutil.rmtree(jobs[-1]['data'], ignore_errors=True)
+    return jobs
+
+
+def figures(row: dict, gt: str, pictures: str, doc: str) -> dict:
+    """What a row adds to its run's numbers: its picture and, a capture row, its millimetres,
+    the size of its photographs and its PSNR curve with its plot."""
+    out = {}
+    stem = os.path.join(pictures, f"{row['scene']}_{row['variant']}_{_tag(row['preset'], row['minutes'])}")
+    capture = row['variant'] == CAPTURE
+    mesh = os.path.join(row['run'], 'mesh.ply')
+    if os.path.isfile(mesh):
+        picture(mesh, gt, stem + '.png', up=-1.0 if capture else 1.0)
+        out['picture'] = os.path.relpath(stem + '.png', doc)
+    if not capture:
+        return out
+    out['photos'] = photo_size(os.path.join(os.path.dirname(gt), 'truth.json'))
+    if row.get('chamfer') is not None:
+        out['chamfer_mm'] = row['chamfer'] / 100
+    if os.path.isdir(row['run']):
+        out.update(psnr_figures(row['run']))
+        if plot_psnr(row['run'], stem + '_psnr.png'):
+            out['psnr_plot'] = os.path.relpath(stem + '_psnr.png', doc)
+    return out
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog='bench/quality.py', description=__doc__.split('\n\n')[0])
     parser.add_argument('--data', default='/work/data/blender_set', help='the set (default: %(default)s)')
     parser.add_argument('--scenes', nargs='+', help='scenes of the set (default: all)')
     parser.add_argument('--variants', nargs='+', default=['box', 'nobox'],
                         help='dataset folders of each scene (default: %(default)s)')
+    parser.add_argument('--captures', nargs='+', metavar='NAME',
+                        help='captures of bench/blender_capture.py to run instead of the set: the museum path '
+                             'from their photographs')
+    parser.add_argument('--capture-data', default='/work/data/bcap',
+                        help='folder of the captures, NAME/photos and NAME/truth (default: %(default)s)')
     parser.add_argument('--configs', nargs='+', default=list(CONFIGS),
                         help='PRESET:MINUTES[,MINUTES...] (default: %(default)s)')
     parser.add_argument('--runs', default=os.path.join(ROOT, 'runs', 'quality'),
@@ -449,35 +689,27 @@ def main(argv=None) -> None:
         print(f'wrote {write_doc(rows, args.doc, command, started, 0.0)}')
         return
     configs = parse_configs(args.configs)
-    if not os.path.isdir(args.data):
-        raise SystemExit(f'error: {args.data}: no such folder; make the set with bench/blender_set.py')
-    scenes = args.scenes or sorted(s for s in os.listdir(args.data)
-                                   if os.path.isfile(os.path.join(args.data, s, 'gt.ply')))
-    if not scenes:
-        raise SystemExit(f'error: {args.data}: no scenes (folders with a gt.ply)')
+    jobs = capture_jobs(args) if args.captures else set_jobs(args)
+    scenes = list(dict.fromkeys(job['scene'] for job in jobs))
     t0 = time.time()
     pictures = os.path.join(args.doc, 'quality')
     os.makedirs(pictures, exist_ok=True)
     earlier, rows = read_record(args.doc), []
     stamp = {'date': started['date'], 'commit': commit(args.doc), 'machine': started['machine']}
-    for scene in scenes:
-        gt = os.path.join(args.data, scene, 'gt.ply')
-        for variant in args.variants:
-            for preset, minutes in configs:
-                row = run_one(os.path.join(args.data, scene, variant), gt, args.runs, scene, variant,
-                              preset, minutes, args.fresh, args.postprocess, args.remesh)
-                mesh = os.path.join(row['run'], 'mesh.ply')
-                if os.path.isfile(mesh):
-                    name = f"{scene}_{variant}_{_tag(preset, minutes)}.png"
-                    picture(mesh, gt, os.path.join(pictures, name))
-                    row['picture'] = os.path.relpath(os.path.join(pictures, name), args.doc)
-                rows.append({**row, **stamp})
-                print(f"{scene} {variant} {preset} {minutes:g} min: {row['status']}, Chamfer "
-                      f"{_fmt(row.get('chamfer'), '.3f') or '-'}, components "
-                      f"{_fmt(row.get('components'), 'd') or '-'}", flush=True)
-                merged = merge(earlier, rows, scenes)
-                write_record(merged, args.doc)
-                path = write_doc(merged, args.doc, command, started, (time.time() - t0) / 60)
+    for job in jobs:
+        for preset, minutes in configs:
+            row = run_one(job['data'], job['gt'], args.runs, job['scene'], job['variant'], preset, minutes,
+                          args.fresh, args.postprocess, args.remesh, job.get('make_data'),
+                          job.get('evaluate_args', ()))
+            row.update(figures(row, job['gt'], pictures, args.doc))
+            rows.append({**row, **stamp})
+            chamfer = (f"Chamfer-L1 {_fmt(row.get('chamfer_mm'), '.3f') or '-'} mm" if row['variant'] == CAPTURE
+                       else f"Chamfer {_fmt(row.get('chamfer'), '.3f') or '-'}")
+            print(f"{row['scene']} {row['variant']} {preset} {minutes:g} min: {row['status']}, {chamfer}, "
+                  f"components {_fmt(row.get('components'), 'd') or '-'}", flush=True)
+            merged = merge(earlier, rows, scenes)
+            write_record(merged, args.doc)
+            path = write_doc(merged, args.doc, command, started, (time.time() - t0) / 60)
     print(f'wrote {path}')
 
 
