@@ -95,15 +95,17 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     **Depth.** ``max_depth`` = D_re counts interface events. A ray created by
     the D-th event is still followed to the next surface: if it escapes it
     takes the backdrop or the ambient, if it is inside its segment is volume rendered. What
-    lies beyond the surface that ends it is ``terminal``: with ``ambient`` (the
-    default) the ambient radiance (or the backdrop, seen straight on from the
-    surface), attenuated by the segment's transmittance;
-    with ``black`` nothing, which is what Mitsuba's ``path`` integrator
-    computes with ``max_depth = D_re + 1``. In ambient light a non-absorbing
-    container is filled with nearly the ambient radiance, so ``ambient`` is
-    the far better truncation: with ``black`` the field has to explain the
-    light of the dropped paths, and paints fake walls to do so. D_re = 0
-    renders the camera ray's own segment only.
+    lies beyond the surface that ends it is ``terminal``, attenuated by the
+    segment's transmittance: with ``trace`` (the default) the light the empty
+    container brings there (:meth:`_trace_beyond`: its further reflections and
+    refractions to the backdrop or the ambient, the field not sampled; exact for
+    a convex container without the field beyond the tree); with ``ambient`` the
+    ambient radiance (or the backdrop) seen straight on from the surface, which
+    is the same in uniform light but wrong where the glass reflects totally
+    toward a board; with ``black`` nothing, which is what Mitsuba's ``path``
+    integrator computes with ``max_depth = D_re + 1`` (the field then has to
+    explain the light of the dropped paths, and paints fake walls to do so).
+    D_re = 0 renders the camera ray's own segment only.
 
     **Radiance units.** As in the paper, the field's colour is seen through an
     interface with weight 1 - R only: the η² radiance scaling at a refractive
@@ -123,7 +125,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
      * - mode, max_depth, terminal, gamma, aovs
        - |string|, |int|, |string|, |float|, |bool|
        - The ray tree (:class:`~reneus_mi.config.RenderConfig`): ``reneus``,
-         ``neus`` or ``neus_plus``; D_re; ``ambient`` or ``black``; the output
+         ``neus`` or ``neus_plus``; D_re; ``trace``, ``ambient`` or ``black``; the output
          is C^(1/gamma); AOVs ``mask``, ``sparsity``, ``nx, ny, nz``.
      * - crease_angle
        - |float|
