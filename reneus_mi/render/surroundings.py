@@ -197,8 +197,9 @@ class BoardShading:
     container), but under and around a container the photographs show it shaded: the glass
     passes (1 - R)^2 of the tent's light, focuses some into caustics, and the specimen casts a
     shadow. Seen from every view through the glass, a board point's gain is one value, so the
-    photographs fix it; without it the field fills the block with fog to darken what it sees
-    there. Every backdrop shape shares the grid through its own uv."""
+    photographs fix it; without it the field can only darken the glass itself (a simulated
+    40 mm block at 960x640: 2.98 mm Chamfer-L1 without, 0.665 mm with it, both measured while
+    batches still repeated their pixels). Every backdrop shape shares the grid through its own uv."""
 
     NAME = 'board.shading'
 
