@@ -2,21 +2,21 @@
 from __future__ import annotations
 
 import dataclasses
-import typing
 from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.config import ModelConfig, RenderConfig, field_config_class, typed_value
+from reneus_mi.config import ModelConfig
 from reneus_mi.errors import ReneusError
-from reneus_mi.fields import FIELD_CONFIGS, Field, load_field
-from reneus_mi.presets import preset
+from reneus_mi.fields import Field
+from reneus_mi.geometry.container import interpolated_normal
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.render.optics import interface
-from reneus_mi.render.ray_samplers import SamplerConfig
+from reneus_mi.render.properties import read_properties
 from reneus_mi.render.seeds import opaque_seed
-from reneus_mi.render.surroundings import Surroundings
+from reneus_mi.render.step_state import StepState
+from reneus_mi.render.surroundings import Surroundings, scene_parts, shapes_bbox, surroundings_of
 from reneus_mi.render.volume_rendering import volume_render
 
 VARIANT = mi.variant()
@@ -47,22 +47,6 @@ class RayTreeResult:
     """Number of samples behind ``eikonal``."""
     normal: mi.Vector3f
     """Normals of the inside segments, accumulated with the same weights as L."""
-
-
-@dataclass
-class StepState:
-    """Per-step schedule values of training, handed to the renderer in one place."""
-    step: int = 0
-    """The optimisation step (the occupancy grid's refreshes count these)."""
-    schedule: int | None = None
-    """Where the schedules stand, in steps (the field's coarse-to-fine levels follow it):
-    the step itself, or under a time budget the share of the budget spent times the
-    planned iterations (None: ``step``)."""
-    cos_anneal_ratio: float = 1.0
-    """NeuS's cosine annealing ratio in [0, 1]."""
-    seed: int | None = None
-    """Seed of the step's random numbers: the stratified jitter of every segment's samples and
-    the Russian roulette of low-weight branches (None: stratum midpoints, roulette stream 0)."""
 
 
 class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
@@ -172,21 +156,24 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     def __init__(self, props: mi.Properties):
         # ADIntegrator's constructor would read max_depth (its own default, untyped): skipped.
         mi.CppADIntegrator.__init__(self, props)
-        self.preset, model, field, self.frame, self.dataset = _read_properties(props)
+        props = read_properties(props)
+        self.preset, self.frame, self.dataset = props.preset, props.frame, props.dataset
         self.state = StepState()
-        self._bound = None
-        self.configure(model, field)
+        self.model, self.field, self._bound = None, None, None
+        self.configure(props.model, props.field)
 
     def configure(self, model: ModelConfig | None = None, field: Field | None = None) -> None:
         """Render with ``model`` (default: the current one) and ``field``.
 
-        Without ``field`` a fresh one is built from ``model.field``; a given
-        field (e.g. a trained one, :func:`~reneus_mi.fields.load_field`) sets
-        ``model.field`` to its own configuration.
+        Without ``field`` the current field is kept where ``model.field`` is its configuration,
+        and a fresh one built from ``model.field`` otherwise; a given field (e.g. a trained one,
+        :func:`~reneus_mi.fields.load_field`) sets ``model.field`` to its own configuration.
         """
         model = model or self.model
         if field is not None:
             model = dataclasses.replace(model, field=field.Config(**field.config()))
+        elif self.model is not None and model.field == self.model.field:
+            field = self.field
         self.model = model
         self.field = field if field is not None else model.field.setup()
         self.sampler = model.sampler.setup()
@@ -352,13 +339,13 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         if pose is None:
             si = container.ray_intersect(mi.Ray3f(rays.o, rays.d))
             p = mi.Point3f(rays.o + si.t * rays.d)
-            return _Hit(t=si.t, p=p, n=si.n, n_s=_shading_normal(surroundings.normals, si, p),
+            return _Hit(t=si.t, p=p, n=si.n, n_s=interpolated_normal(surroundings.normals, si, p),
                         valid=si.is_valid())
         # The container as loaded, seen by the rays taken into its frame: t is the same
         # parameter along both rays when the direction keeps its length.
         o_c, d_c = pose.to_container(rays.o, rays.d)
         si = container.ray_intersect(mi.Ray3f(o_c, d_c))
-        n_s = _shading_normal(surroundings.normals, si, o_c + si.t * d_c)
+        n_s = interpolated_normal(surroundings.normals, si, o_c + si.t * d_c)
         return _Hit(t=si.t, p=mi.Point3f(rays.o + si.t * rays.d), n=pose.normal_to_world(si.n),
                     n_s=pose.normal_to_world(n_s), valid=si.is_valid())
 
@@ -437,81 +424,17 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     def bind(self, scene: mi.Scene) -> Surroundings:
         """The surroundings of ``scene`` (container, IOR, light, backdrop), checked and built once
         per scene (its shapes identify it); their parameters then appear in ``mi.traverse``."""
-        key = (tuple(scene.shapes()), scene.environment())
-        if self._bound is None or not _same(self._bound[0], key):
-            self._bound = (key, _surroundings(scene, self.model.render))
+        key = (*scene.shapes(), scene.environment())
+        if self._bound is None or len(self._bound[0]) != len(key) or \
+                any(a is not b for a, b in zip(self._bound[0], key)):
+            self._bound = (key, surroundings_of(scene, self.model.render))
         return self._bound[1]
 
     def frame_of(self, scene: mi.Scene) -> FieldFrame:
         """The field's frame bounded by the scene's container (by the unit sphere without one)."""
-        bbox = _bbox(_parts(scene)[0])
+        bbox = shapes_bbox(scene_parts(scene)[0])
         bounds = (tuple(bbox.min), tuple(bbox.max)) if bbox.valid() else None
         return dataclasses.replace(self.frame, bounds=bounds)
-
-
-def _parts(scene: mi.Scene) -> tuple[list, list, list]:
-    """The scene's shapes sorted: the container (smooth dielectrics), the backdrop (area
-    emitters), the others (an error where the container matters)."""
-    container, backdrop, other = [], [], []
-    for shape in scene.shapes():
-        bsdf = shape.bsdf()
-        if bsdf is not None and bsdf.class_name() == 'SmoothDielectric':
-            container.append(shape)
-        elif shape.is_emitter():
-            backdrop.append(shape)
-        else:
-            other.append(shape)
-    return container, backdrop, other
-
-
-def _bbox(shapes: list) -> mi.ScalarBoundingBox3f:
-    """The union of the shapes' bounding boxes (invalid for none)."""
-    bbox = mi.ScalarBoundingBox3f()
-    for shape in shapes:
-        bbox.expand(shape.bbox())
-    return bbox
-
-
-def _surroundings(scene: mi.Scene, render: RenderConfig) -> Surroundings:
-    """The scene's container, light and backdrop, checked: every shape a smooth dielectric of
-    one IOR or an area emitter."""
-    shapes, backdrop, other = _parts(scene)
-    if scene.environment() is None:
-        raise ReneusError("reneus integrator: the scene has no environment emitter; expected "
-                          "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
-    if render.mode == 'neus':
-        return Surroundings(1.0, shapes, scene.environment(), backdrop=backdrop, light=render.light,
-                            board_texels=render.board_texels)
-    for shape in other:
-        bsdf = shape.bsdf()
-        name = bsdf.class_name() if bsdf is not None else 'no'
-        raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {name} BSDF and no emitter; "
-                          "every shape must be the container, with a smooth 'dielectric' BSDF, or a "
-                          "backdrop with an 'area' emitter (the board the container stands on)")
-    if not shapes:
-        raise ReneusError('reneus integrator: the scene has no shape with a dielectric BSDF; expected '
-                          'the container as such a shape')
-    eta = None
-    for shape in shapes:
-        bsdf = shape.bsdf()
-        value = mi.traverse(bsdf)['eta']
-        if eta is not None and abs(value - eta) > 1e-6:
-            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
-                              f'container shape has {eta}; expected one IOR')
-        eta = value
-    if render.container_pose and not all(isinstance(sh, mi.Mesh) for sh in shapes):
-        raise ReneusError('reneus integrator: container_pose needs the container as triangle meshes '
-                          '(ply, obj); the scene has another kind of shape')
-    bbox = _bbox(shapes)
-    return Surroundings(eta, shapes, scene.environment(), backdrop=backdrop, light=render.light,
-                        pose=render.container_pose, pivot=0.5 * (bbox.min + bbox.max),
-                        crease_angle=render.crease_angle, board_texels=render.board_texels)
-
-
-def _same(a: tuple, b: tuple) -> bool:
-    shapes_a, env_a = a
-    shapes_b, env_b = b
-    return env_a is env_b and len(shapes_a) == len(shapes_b) and all(x is y for x, y in zip(shapes_a, shapes_b))
 
 
 @dataclass
@@ -578,122 +501,3 @@ def _offset(p: mi.Point3f, n: mi.Vector3f, d: mi.Vector3f) -> mi.Point3f:
     q = dr.detach(p)
     size = 1.0 + dr.maximum(dr.maximum(dr.abs(q.x), dr.abs(q.y)), dr.abs(q.z))
     return mi.Point3f(p + dr.detach(dr.mulsign(mi.Vector3f(n), dr.dot(n, d)) * (size * mi.math.RayEpsilon)))
-
-
-def _shading_normal(normals: dict, si: mi.SurfaceInteraction3f, p: mi.Point3f) -> mi.Vector3f:
-    """The shading normal at ``p`` on the triangle ``si`` hit: its corners' normals
-    (``normals[shape]``, the container's rule, :func:`~reneus_mi.geometry.container.corner_normals`)
-    interpolated at the barycentrics of ``p``. Unlike ``si.sh_frame.n`` it follows ``p`` when
-    the ray moves (the pose's derivative on curved glass). Shapes that are not meshes
-    (Mitsuba's analytic sphere) keep their own."""
-    n_s = mi.Vector3f(si.sh_frame.n)
-    for shape, table in normals.items():
-        on = si.is_valid() & (si.shape == mi.ShapePtr(shape))
-        f = shape.face_indices(si.prim_index, on)
-        p0, p1, p2 = (shape.vertex_position(f[i], on) for i in range(3))
-        e1, e2, e = p1 - p0, p2 - p0, p - p0
-        d11, d12, d22 = dr.dot(e1, e1), dr.dot(e1, e2), dr.dot(e2, e2)
-        inv = dr.rcp(dr.maximum(d11 * d22 - d12 * d12, 1e-20))
-        b1 = (d22 * dr.dot(e, e1) - d12 * dr.dot(e, e2)) * inv
-        b2 = (d11 * dr.dot(e, e2) - d12 * dr.dot(e, e1)) * inv
-        corner = 3 * si.prim_index
-        n = ((1.0 - b1 - b2) * dr.gather(mi.Vector3f, table, corner, on)
-             + b1 * dr.gather(mi.Vector3f, table, corner + 1, on)
-             + b2 * dr.gather(mi.Vector3f, table, corner + 2, on))
-        n_s = dr.select(on, dr.normalize(n), n_s)
-    return n_s
-
-
-# ------------------------------------------------------------ XML properties
-#: Properties that are not settings of the model.
-_OTHER = ('preset', 'field', 'field_center', 'field_scale', 'dataset')
-
-
-def _read_properties(props: mi.Properties):
-    """(preset name, ModelConfig, saved field or None, FieldFrame, dataset) of the XML properties."""
-    name = _get(props, 'preset', str, 'paper')
-    try:
-        model = preset(name).model
-    except ReneusError as e:
-        raise ReneusError(f'reneus integrator: {e}') from None
-    sections = {}
-    for section, cls in (('render', RenderConfig), ('sampler', SamplerConfig)):
-        hints = typing.get_type_hints(cls)
-        given = {f.name: _get(props, f.name, hints[f.name]) for f in dataclasses.fields(cls)
-                 if f.name in props}
-        sections[section] = _build(cls, getattr(model, section), given)
-
-    spec = _get(props, 'field', str, model.field.kind)
-    field_props = {n[len('field_'):]: n for n in props.keys()
-                   if n.startswith('field_') and n not in _OTHER}
-    field = None
-    if spec.endswith('.npz'):
-        if field_props:
-            raise ReneusError(f'reneus integrator: field={spec!r} is a saved field; '
-                              f"field_* parameters ({', '.join(field_props.values())}) do not apply")
-        field = load_field(spec)
-        field_cfg = field.Config(**field.config())
-    else:
-        if spec not in FIELD_CONFIGS:
-            raise ReneusError(f"reneus integrator: field={spec!r}; expected one of "
-                              f"{', '.join(FIELD_CONFIGS)} or the path of a saved field (.npz)")
-        cls = field_config_class(spec, 'field')
-        base = model.field if model.field.kind == spec else cls()
-        hints = typing.get_type_hints(cls)
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(field_props) - known)
-        if unknown:
-            raise ReneusError(f"reneus integrator: unknown parameter(s) "
-                              f"{', '.join(repr(field_props[u]) for u in unknown)}; the {spec} field "
-                              f"takes field_<name> for name in {', '.join(sorted(known))}")
-        field_cfg = _build(cls, base, {k: _get(props, n, hints[k]) for k, n in field_props.items()})
-
-    center = _get(props, 'field_center', tuple, (0.0, 0.0, 0.0))
-    frame = FieldFrame(center=center, scale=_get(props, 'field_scale', float, 1.0))
-    dataset = _get(props, 'dataset', str, '')
-    unknown = list(props.unqueried())
-    if unknown:
-        known = [f.name for c in (RenderConfig, SamplerConfig) for f in dataclasses.fields(c)]
-        raise ReneusError(f"reneus integrator: unknown parameter(s) {', '.join(map(repr, unknown))}; "
-                          f"expected {', '.join(known + list(_OTHER))} or field_<name>")
-    return name, ModelConfig(field=field_cfg, **sections), field, frame, dataset
-
-
-def xml_properties(settings: dict) -> dict:
-    """The integrator's XML properties of model settings given by dotted path, as
-    :func:`_read_properties` reads them back: ``model.render.max_depth`` -> ``max_depth``,
-    ``model.sampler.n_coarse`` -> ``n_coarse``, ``model.field.hidden`` -> ``field_hidden``,
-    ``model.field`` (a field configuration) -> ``field`` (its kind)."""
-    out = {}
-    for path, value in settings.items():
-        parts = path.split('.')
-        if parts[:2] == ['model', 'field'] and len(parts) <= 3:
-            out['field_' + parts[2] if len(parts) == 3 else 'field'] = value if len(parts) == 3 else value.kind
-        elif parts[0] == 'model' and len(parts) == 3 and parts[1] in ('render', 'sampler'):
-            out[parts[2]] = value
-        else:
-            raise ReneusError(f'{path}: not a setting of the reneus integrator (its scene holds '
-                              'model.render.*, model.sampler.* and model.field.*; train.* are '
-                              "optimize's)")
-    return out
-
-
-def _get(props: mi.Properties, name: str, kind, default=None):
-    """Property ``name`` checked against ``kind``; the error names it and what was expected."""
-    if name not in props:
-        return default
-    value = props.get(name)
-    if kind is tuple or typing.get_origin(kind) is tuple:
-        value = tuple(float(v) for v in value) if not isinstance(value, (str, bool, int, float)) else value
-    try:
-        return typed_value(value, kind, f'reneus integrator: {name}')
-    except ReneusError as e:
-        raise ReneusError(str(e)) from None
-
-
-def _build(cls, base, given: dict):
-    """``base`` (a config of ``cls``) with the ``given`` fields, validated."""
-    try:
-        return dataclasses.replace(base, **given)
-    except ReneusError as e:
-        raise ReneusError(f'reneus integrator: {e}') from None

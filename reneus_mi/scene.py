@@ -15,9 +15,12 @@ import sys
 import warnings
 
 from reneus_mi import guards
+from reneus_mi.config import with_settings
 from reneus_mi.data import load_dataset
 from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.errors import ReneusError, exit_on_error
+from reneus_mi.presets import preset
+from reneus_mi.render.properties import xml_properties
 
 
 def _literal(text: str) -> bool | int | float | str:
@@ -79,9 +82,6 @@ def main(argv: list[str] | None = None) -> int:
         guards.check_output_file(args.output, inputs=[args.data_dir], overwrite=args.overwrite,
                                  extensions=('.xml',))
         if args.integrator == 'reneus':
-            from reneus_mi.config import with_settings
-            from reneus_mi.plugins.reneus import xml_properties
-            from reneus_mi.presets import preset
             cfg, changes = with_settings(preset(args.preset), args.settings)
             settings = {'preset': args.preset, **xml_properties(changes)}
         else:

@@ -145,6 +145,29 @@ def shading_normals(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> mi.Fl
                                    crease_angle).ravel())
 
 
+def interpolated_normal(normals: dict, si: mi.SurfaceInteraction3f, p: mi.Point3f) -> mi.Vector3f:
+    """The shading normal at ``p`` on the triangle ``si`` hit: its corners' normals
+    (``normals[shape]``, the container's rule: :func:`shading_normals`) interpolated at the barycentrics of ``p``. Unlike ``si.sh_frame.n`` it follows ``p`` when
+    the ray moves (the pose's derivative on curved glass). Shapes that are not meshes
+    (Mitsuba's analytic sphere) keep their own."""
+    n_s = mi.Vector3f(si.sh_frame.n)
+    for shape, table in normals.items():
+        on = si.is_valid() & (si.shape == mi.ShapePtr(shape))
+        f = shape.face_indices(si.prim_index, on)
+        p0, p1, p2 = (shape.vertex_position(f[i], on) for i in range(3))
+        e1, e2, e = p1 - p0, p2 - p0, p - p0
+        d11, d12, d22 = dr.dot(e1, e1), dr.dot(e1, e2), dr.dot(e2, e2)
+        inv = dr.rcp(dr.maximum(d11 * d22 - d12 * d12, 1e-20))
+        b1 = (d22 * dr.dot(e, e1) - d12 * dr.dot(e, e2)) * inv
+        b2 = (d11 * dr.dot(e, e2) - d12 * dr.dot(e, e1)) * inv
+        corner = 3 * si.prim_index
+        n = ((1.0 - b1 - b2) * dr.gather(mi.Vector3f, table, corner, on)
+             + b1 * dr.gather(mi.Vector3f, table, corner + 1, on)
+             + b2 * dr.gather(mi.Vector3f, table, corner + 2, on))
+        n_s = dr.select(on, dr.normalize(n), n_s)
+    return n_s
+
+
 def container_shape(path: str, bsdf: dict | None = None) -> mi.Mesh:
     """The container file as a Mitsuba mesh: as Mitsuba's own reader loads it (stored
     normals included) where it can; a PLY of polygons, which that reader refuses

@@ -377,3 +377,64 @@ class Surroundings:
             if value.size != dr.width(array):
                 raise ReneusError(f'{where}: {name} holds {value.size} values; expected {dr.width(array)}')
             mi.set_property(array, mi.Float(value))
+
+
+# ------------------------------------------------------------ the scene's shapes
+def scene_parts(scene: mi.Scene) -> tuple[list, list, list]:
+    """The scene's shapes sorted: the container (smooth dielectrics), the backdrop (area
+    emitters), the others (an error where the container matters)."""
+    container, backdrop, other = [], [], []
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if bsdf is not None and bsdf.class_name() == 'SmoothDielectric':
+            container.append(shape)
+        elif shape.is_emitter():
+            backdrop.append(shape)
+        else:
+            other.append(shape)
+    return container, backdrop, other
+
+
+def shapes_bbox(shapes: list) -> mi.ScalarBoundingBox3f:
+    """The union of the shapes' bounding boxes (invalid for none)."""
+    bbox = mi.ScalarBoundingBox3f()
+    for shape in shapes:
+        bbox.expand(shape.bbox())
+    return bbox
+
+
+def surroundings_of(scene: mi.Scene, render) -> 'Surroundings':
+    """The container, light and backdrop of ``scene`` as ``render`` (a
+    :class:`~reneus_mi.config.RenderConfig`) models them, checked: every shape a smooth
+    dielectric of one IOR or an area emitter."""
+    shapes, backdrop, other = scene_parts(scene)
+    if scene.environment() is None:
+        raise ReneusError("reneus integrator: the scene has no environment emitter; expected "
+                          "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
+    if render.mode == 'neus':
+        return Surroundings(1.0, shapes, scene.environment(), backdrop=backdrop, light=render.light,
+                            board_texels=render.board_texels)
+    for shape in other:
+        bsdf = shape.bsdf()
+        name = bsdf.class_name() if bsdf is not None else 'no'
+        raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {name} BSDF and no emitter; "
+                          "every shape must be the container, with a smooth 'dielectric' BSDF, or a "
+                          "backdrop with an 'area' emitter (the board the container stands on)")
+    if not shapes:
+        raise ReneusError('reneus integrator: the scene has no shape with a dielectric BSDF; expected '
+                          'the container as such a shape')
+    eta = None
+    for shape in shapes:
+        bsdf = shape.bsdf()
+        value = mi.traverse(bsdf)['eta']
+        if eta is not None and abs(value - eta) > 1e-6:
+            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
+                              f'container shape has {eta}; expected one IOR')
+        eta = value
+    if render.container_pose and not all(isinstance(sh, mi.Mesh) for sh in shapes):
+        raise ReneusError('reneus integrator: container_pose needs the container as triangle meshes '
+                          '(ply, obj); the scene has another kind of shape')
+    bbox = shapes_bbox(shapes)
+    return Surroundings(eta, shapes, scene.environment(), backdrop=backdrop, light=render.light,
+                        pose=render.container_pose, pivot=0.5 * (bbox.min + bbox.max),
+                        crease_angle=render.crease_angle, board_texels=render.board_texels)

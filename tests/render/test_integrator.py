@@ -313,7 +313,7 @@ def test_russian_roulette_is_unbiased():
     # behind a half-opaque segment): over many seeds the mean image is the
     # deterministic tree's. Measured: |mean - tree| / SE has a mean of ~0.8 (a
     # normal's is 0.8); dropping the 1/p reweighting gives a mean of ~67.
-    from reneus_mi.plugins.reneus import StepState
+    from reneus_mi.render.step_state import StepState
     from reference import pixel_rays
     scene = reneus_scene(12, max_depth=3, field_inv_s=30.0)
     it = scene.integrator()
