@@ -8,11 +8,10 @@ def register() -> None:
     """Register every plugin for the active variant (idempotent)."""
     if mi.variant() in _registered:
         return
-    # The integrator class derives from the variant's ADIntegrator: a module
-    # imported under another variant must be re-imported.
+    # A plugin module registers itself as it is imported. Its class derives from the variant's
+    # ADIntegrator: a module imported under another variant is imported again.
     import importlib
     from reneus_mi.plugins import reneus
     if reneus.VARIANT != mi.variant():
-        reneus = importlib.reload(reneus)
-    mi.register_integrator('reneus', lambda props: reneus.ReNeuSIntegrator(props))
+        importlib.reload(reneus)
     _registered.add(mi.variant())

@@ -501,3 +501,6 @@ def _offset(p: mi.Point3f, n: mi.Vector3f, d: mi.Vector3f) -> mi.Point3f:
     q = dr.detach(p)
     size = 1.0 + dr.maximum(dr.maximum(dr.abs(q.x), dr.abs(q.y)), dr.abs(q.z))
     return mi.Point3f(p + dr.detach(dr.mulsign(mi.Vector3f(n), dr.dot(n, d)) * (size * mi.math.RayEpsilon)))
+
+
+mi.register_integrator('reneus', lambda props: ReNeuSIntegrator(props))
