@@ -83,7 +83,7 @@ def child(args) -> None:
     spec.config, _ = with_settings(replace(spec.config, **{'train.iterations': 10 ** 7, 'train.validate_every': 0,
                                                            'train.checkpoint_every': 0}), args.set + own)
     run_dir = os.path.join(args.out, tag)
-    trainer = runs.make_trainer(spec, run_dir)
+    trainer = runs.open_spec(spec, run_dir).trainer()
     gt = load_mesh(load_dataset(data).gt_mesh)
     points = sorted(args.points)
     curve, steps = [], []

@@ -47,7 +47,7 @@ def child(args) -> None:
     spec.config = replace(spec.config, **{'train.batch_rays': args.one_batch, 'train.iterations': 10 ** 6,
                                           'train.validate_every': 0, 'train.checkpoint_every': 0})
     with tempfile.TemporaryDirectory() as out:
-        trainer = runs.make_trainer(spec, out)
+        trainer = runs.open_spec(spec, out).trainer()
         scene = trainer.scene
         warm = []
         for _ in range(args.warmup):

@@ -19,7 +19,12 @@ import sys
 
 from reneus_mi import cli, interrupt
 from reneus_mi.config import TrainConfig
+from reneus_mi.data.synth import demo_scene
 from reneus_mi.errors import ReneusError, exit_on_error
+from reneus_mi.geometry.chamfer import chamfer
+from reneus_mi.geometry.mesh import load_mesh
+from reneus_mi.train import runs
+from reneus_mi.train.run_folder import RunFolder, recent_psnr
 
 
 def main(argv=None) -> int:
@@ -53,10 +58,6 @@ def left_in(folder) -> str:
 
 
 def run(args) -> str:
-    from reneus_mi.config import replace, with_settings
-    from reneus_mi.data.synth import demo_scene
-    from reneus_mi.train import runs
-    from reneus_mi.train.run_folder import RunFolder, recent_psnr
     if args.scene is None and not args.demo and not args.resume:
         raise ReneusError('no scene given: pass a scene XML (python -m reneus_mi.scene DATA -o '
                           'scene.xml writes one), or --demo for the embedded demo')
@@ -64,26 +65,14 @@ def run(args) -> str:
     out = args.output or os.path.join('runs', name)
     folder = RunFolder(out)
     interrupt.leaving(lambda: left_in(folder))
-    folder.check_start(args.resume)
-    if args.resume:
-        spec = runs.read_spec(out)
-        if args.scene:
-            raise ReneusError(f'{out}: --resume continues the run recorded in its config.json '
-                              f'(scene {spec.scene}), but {args.scene} was given; expected no scene')
-        if args.data:
-            spec = spec.with_data(os.path.abspath(args.data))
-    else:
-        folder.check(inputs=[args.scene, args.data])
-        # The demo's photographs go beside the run folder: no run ever writes where its inputs are.
-        scene = demo_scene(os.path.abspath(out).rstrip(os.sep) + '_data') if args.demo else args.scene
-        spec = runs.spec_of_scene(scene, args.data)
-    given = cli.given_arguments(TrainConfig, args)
-    spec.config, _ = with_settings(replace(spec.config, **{f'train.{k}': v for k, v in given.items()}),
-                                   args.settings)
-    result = runs.run(spec, out, resume=args.resume, progress=not args.quiet)
+    # The demo's photographs go beside the run folder: no run ever writes where its inputs are.
+    scene = (lambda: demo_scene(os.path.abspath(out).rstrip(os.sep) + '_data')) if args.demo else args.scene
+    prepared = runs.prepare(out, scene, args.data, train=cli.given_arguments(TrainConfig, args),
+                            settings=args.settings, resume=args.resume)
+    result = prepared.train(progress=not args.quiet)
     if 'failure' in result:
         raise ReneusError(f"{result['failure']}; {out}: {folder.state().advice()}")
-    cfg = spec.config.train
+    cfg = prepared.spec.config.train
     ended = (f"stopped by the time budget ({cfg.max_minutes:g} min) after {result['iterations']} iterations"
              if result['stopped_by_budget'] else f"done: {result['iterations']} iterations")
     psnr = result['psnr']
@@ -96,8 +85,6 @@ def run(args) -> str:
              + (f"; renders {folder.images}" if cfg.validate_every else '')]
     gt = result.get('ground_truth')
     if gt:
-        from reneus_mi.geometry.chamfer import chamfer
-        from reneus_mi.geometry.mesh import load_mesh
         c = chamfer(load_mesh(result['mesh']), load_mesh(gt))
         lines.append(f"Chamfer-L1 x100 to the ground truth: {c['chamfer']:.3f} (postprocess {cfg.postprocess}, "
                      f"{result['components']} component(s))")

@@ -55,8 +55,9 @@ def tiny_spec(scene_xml: str, **train) -> runs.RunSpec:
     return spec
 
 
-def new_trainer(scene_xml: str, out, **cfg) -> Trainer:
-    trainer = runs.make_trainer(tiny_spec(scene_xml, **cfg), str(out))
+def new_trainer(scene_xml: str, out, resume: bool = False, **cfg) -> Trainer:
+    """A trainer of the tiny run in ``out`` (from its checkpoint with ``resume``)."""
+    trainer = runs.open_spec(tiny_spec(scene_xml, **cfg), str(out), resume=resume).trainer()
     os.makedirs(str(out), exist_ok=True)
     return trainer
 

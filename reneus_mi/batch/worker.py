@@ -2,7 +2,7 @@
 
 Every engine (the local pool, Ray, Slurm) calls the same function with the same
 task (a dict: the specimen, the batch folder, the threads, the variant); the run
-itself is :func:`reneus_mi.train.runs.run`'s. The worker takes the run's lock
+itself is :func:`reneus_mi.train.runs.prepare`'s. The worker takes the run's lock
 first and holds it throughout: a run held by another process is left alone
 (``busy``). Under the lock it
 
@@ -65,7 +65,6 @@ def run_task(task: dict) -> dict:
 
 def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
     from reneus_mi.errors import ReneusError, one_line, user_message
-    from reneus_mi.train import runs
     result = folder.read_result()
     if result is not None and 'failure' not in result and not redo:
         return 'skipped', 'finished before'
@@ -75,11 +74,8 @@ def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
         if os.path.isfile(stale):
             os.unlink(stale)
     try:
-        spec = prepare(specimen, files)
-        if os.path.isfile(folder.config) and not runs.read_spec(folder.path).same_run(spec):
-            raise ReneusError(f'{folder.path}: holds a run with other settings; expected the same '
-                              f'settings, or --redo {specimen.name} to start it over')
-        result = runs.run(spec, folder.path, resume=os.path.isfile(folder.checkpoint), progress=False)
+        run = prepare(specimen, files, folder)
+        result = run.train(progress=False)
     except (ReneusError, RuntimeError, OSError) as e:
         # Bad data, an error of Mitsuba's, a full disk: this specimen's, not the batch's.
         return 'failed', _record_failure(folder, one_line(user_message(e) if isinstance(e, RuntimeError)
@@ -89,43 +85,42 @@ def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
         return 'failed', _record_failure(folder, f'internal error: {type(e).__name__}: {one_line(str(e))}')
     if 'failure' in result:
         return 'failed', result['failure']
-    measure(spec, result['mesh'], files)
+    measure(run.dataset, result['mesh'], files)
     return 'finished', ''
 
 
-def prepare(specimen, files):
-    """The specimen's :class:`~reneus_mi.train.runs.RunSpec`: a capture captured into
-    ``files.dataset`` (once), the scene XML written, the preset and settings applied."""
+def prepare(specimen, files, folder):
+    """The specimen's :class:`~reneus_mi.train.runs.Run`: a capture captured into
+    ``files.dataset`` (once), the scene XML written, the preset and settings applied; from its
+    checkpoint where the folder holds one."""
+    # Imported here, after run_task set the task's variant: these modules bind Mitsuba's variant.
     import dataclasses
-    from reneus_mi.config import with_settings
+    from reneus_mi.capture import pipeline, settings as capture_settings
     from reneus_mi.data import load_dataset
     from reneus_mi.data.scene_xml import write_scene
+    from reneus_mi.errors import ReneusError
     from reneus_mi.train import runs
     os.makedirs(files.path, exist_ok=True)
     data = specimen.data
     if specimen.kind == 'capture':
         data = files.dataset
         if not os.path.isfile(os.path.join(data, 'transforms.json')):
-            from reneus_mi.capture import pipeline, settings
             given = dict(specimen.capture, **({'ior': specimen.ior} if specimen.ior is not None else {}))
-            pipeline.run(settings.resolve(given, specimen.data), specimen.data, data)
+            pipeline.run(capture_settings.resolve(given, specimen.data), specimen.data, data)
     elif not os.path.isdir(data):
-        from reneus_mi.errors import ReneusError
         raise ReneusError(f'{data}: dataset folder does not exist')
     ds = load_dataset(data, need_container=False)
     if specimen.ior is not None and specimen.kind == 'dataset':
         ds = dataclasses.replace(ds, ior=specimen.ior)
     write_scene(ds, files.scene, preset=specimen.preset, overwrite=True)
-    spec = runs.spec_of_scene(files.scene, data)
-    spec.config, _ = with_settings(spec.config, specimen.settings)
-    return spec
+    return runs.prepare(folder.path, files.scene, data, settings=specimen.settings, resume=None,
+                        remedy=f'--redo {specimen.name} to start it over')
 
 
-def measure(spec, mesh_path: str, files) -> dict:
-    """Chamfer to the dataset's ground truth (if it has one) and a preview of the mesh, into
-    ``files.metrics`` and ``files.preview``; an empty mesh has neither."""
+def measure(ds, mesh_path: str, files) -> dict:
+    """Chamfer to the ground truth of the dataset ``ds`` (if it has one) and a preview of the
+    mesh, into ``files.metrics`` and ``files.preview``; an empty mesh has neither."""
     import trimesh
-    from reneus_mi.data import load_dataset
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh
     from reneus_mi.io import atomic_write_text
@@ -133,7 +128,6 @@ def measure(spec, mesh_path: str, files) -> dict:
     metrics = {}
     mesh = trimesh.load(mesh_path, process=False, force='mesh')
     if len(mesh.faces):
-        ds = load_dataset(spec.data, need_container=False)
         if ds.gt_mesh:
             metrics['chamfer'] = chamfer(load_mesh(mesh_path), load_mesh(ds.gt_mesh))['chamfer']
         # Seen from the first camera, upright as in its photograph (OpenCV: y points down).

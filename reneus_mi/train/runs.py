@@ -1,28 +1,40 @@
 """Runs: one reconstruction in one folder, and many of them.
 
-A :class:`RunSpec` is everything a run is made of: the scene (container,
-light), the dataset and the whole :class:`~reneus_mi.config.ReconstructionConfig`.
-:func:`run` trains one in its folder (:class:`~reneus_mi.train.run_folder.RunFolder`)
-and writes ``config.json`` (the spec, which rebuilds the run: :func:`read_spec`)
-and ``result.json``; :func:`run_many` goes through a collection by the state of
-each folder, skipping finished runs and resuming killed ones, so that a batch
-of specimens (or a benchmark table) can be interrupted and started again at no
-cost.
+:func:`prepare` makes a :class:`Run` from a scene (or, to continue, from a run folder): it
+checks the folder, loads the scene and the dataset once, resolves the configuration once
+(the integrator's model, its preset's training, the settings given) and builds the trainer
+on them; :meth:`Run.train` trains it in its folder
+(:class:`~reneus_mi.train.run_folder.RunFolder`) and writes ``config.json`` (the
+:class:`RunSpec`, the run's record, from which :func:`read_spec` and :func:`run_many`
+rebuild it) and ``result.json``. :func:`run_many` goes through a collection by the state of
+each folder, skipping finished runs and resuming killed ones, so that a batch of specimens
+(or a benchmark table) can be interrupted and started again at no cost.
 """
 from __future__ import annotations
 
 import dataclasses
 import os
 from dataclasses import dataclass
+from typing import Callable, Sequence
 
-from reneus_mi.config import ReconstructionConfig, from_dict, to_dict
+import mitsuba as mi
+
+from reneus_mi.config import ReconstructionConfig, from_dict, replace, to_dict, with_settings
+from reneus_mi.data import Dataset, load_dataset
+from reneus_mi.data.dataset import check_same_dataset, dataset_fingerprint
 from reneus_mi.errors import ReneusError
+from reneus_mi.geometry.surface import check_resolution
 from reneus_mi.io import check_npz_file
+from reneus_mi.presets import preset
+from reneus_mi.render.loading import check_field_reaches, copy_scene, load_scene, reneus_integrator
+from reneus_mi.train.pixel_sampler import BYTES_PER_PIXEL
 from reneus_mi.train.run_folder import RunFolder
+from reneus_mi.train.trainer import BUDGET_RANGE, Trainer, TrainingError, check_batch
 
 
 @dataclass
 class RunSpec:
+    """A run's record (``config.json``): enough to build it again."""
     scene: str
     """The scene XML: container, ambient light and the reneus integrator."""
     data: str
@@ -49,12 +61,12 @@ class RunSpec:
             scene, data = d.pop('scene'), d.pop('data')
         except KeyError as e:
             raise ReneusError(f'{where}: no {e.args[0]!r} entry; expected scene, data, model, train') from None
-        preset, bounds, fingerprint = d.pop('preset', ''), d.pop('mesh_bounds', None), d.pop('data_fingerprint', None)
+        preset_name, bounds, fingerprint = d.pop('preset', ''), d.pop('mesh_bounds', None), d.pop('data_fingerprint', None)
         try:
             config = from_dict(ReconstructionConfig, d)
         except ReneusError as e:
             raise ReneusError(f'{where}: {e}') from None
-        return RunSpec(scene, data, config, preset, None if bounds is None else tuple(map(tuple, bounds)),
+        return RunSpec(scene, data, config, preset_name, None if bounds is None else tuple(map(tuple, bounds)),
                        fingerprint)
 
     def same_run(self, other: 'RunSpec') -> bool:
@@ -64,51 +76,134 @@ class RunSpec:
             a['data_fingerprint'] = b['data_fingerprint'] = None
         return a == b
 
-    def with_data(self, data: str) -> 'RunSpec':
-        """The run on the dataset in ``data``, which must be the one it was started on (moved)."""
-        from reneus_mi.data import load_dataset
-        from reneus_mi.data.dataset import check_same_dataset
-        if self.data_fingerprint is not None:
-            moved = load_dataset(data, need_container=False, max_size=self.config.train.max_image_size)
-            check_same_dataset(self.data_fingerprint, moved, f'--data {data}: not the dataset this run was '
-                               'started on')
-        return dataclasses.replace(self, data=data)
+
+@dataclass
+class Run:
+    """A run ready to train: its record, its folder, the scene and dataset it was built on, and
+    whether it continues the folder's checkpoint."""
+    spec: RunSpec
+    folder: RunFolder
+    scene: mi.Scene
+    dataset: Dataset
+    resume: bool
+
+    def trainer(self) -> Trainer:
+        """The trainer of the run (from its checkpoint when it continues one)."""
+        frame = reneus_integrator(self.scene, self.spec.scene).frame_of(self.scene)
+        if self.spec.mesh_bounds is not None:
+            frame = dataclasses.replace(frame, bounds=self.spec.mesh_bounds)
+        return Trainer(self.scene, self.dataset, self.spec.config.train, self.folder, frame=frame,
+                       resume=self.resume)
+
+    def train(self, progress: bool = True) -> dict:
+        """Train in the run's folder, under its lock; return the result (also ``result.json``)."""
+        folder = self.folder
+        os.makedirs(folder.path, exist_ok=True)
+        with folder.lock():
+            folder.remove_stray_temporaries()
+            if self.resume:
+                check_npz_file(folder.checkpoint, 'checkpoint')
+            trainer = self.trainer()
+            if not self.resume:
+                copy_scene(self.spec.scene, folder.scene_copy)
+            folder.clear_result()
+            folder.write_config(self.spec.to_dict())
+            try:
+                result = trainer.run(progress=progress)
+            except TrainingError as e:
+                result = {'failure': str(e), 'iterations': trainer.iteration}
+            folder.write_result(result)
+        return result
 
 
-def read_spec(out: str) -> RunSpec:
-    """The spec recorded in a run folder's ``config.json``."""
+def prepare(out: str, scene: str | Callable[[], str] | None = None, data: str | None = None, *,
+            train: dict | None = None, settings: Sequence[str] = (), resume: bool | None = False,
+            remedy: str = 'choose another folder') -> Run:
+    """The run in folder ``out``: of ``scene`` (with its integrator's ``dataset``, or ``data``),
+    or with ``resume`` the one the folder records (``data``: its dataset, moved).
+
+    ``train`` sets training fields by name and ``settings`` any setting (``PATH=VALUE``), in
+    that order, over the integrator's model and its preset's training (or the record's). ``scene`` may be a
+    function that writes the scene (the demo), called once the folder is known to take the run.
+    ``resume=None`` takes the folder as it is (a batch's specimen): the run of ``scene``
+    continues the folder's checkpoint where it has one, and a folder that records a run of
+    other settings is an error (its message ends with ``remedy``).
+    """
     folder = RunFolder(out)
-    return RunSpec.from_dict(folder.read_config(), folder.config)
+    as_found = resume is None
+    if as_found:
+        resume = os.path.isfile(folder.checkpoint)
+    folder.check_start(resume)
+    if resume and not as_found:
+        spec = read_spec(out)
+        if scene is not None:
+            raise ReneusError(f'{out}: --resume continues the run recorded in its config.json '
+                              f'(scene {spec.scene}), but {scene} was given; expected no scene')
+        spec.config = _with(spec.config, train, settings)
+        return _open(spec, folder, resume=True, moved=data)
+    folder.check(inputs=[s for s in (scene, data) if isinstance(s, str)], resume=resume)
+    if callable(scene):
+        scene = scene()
+    loaded = load_scene(scene)
+    spec = _spec(scene, loaded, data, train, settings)
+    if as_found and os.path.isfile(folder.config):
+        recorded = read_spec(out)
+        if not recorded.same_run(spec):
+            raise ReneusError(f'{out}: holds a run with other settings; expected the same settings, '
+                              f'or {remedy}')
+        spec = recorded if resume else spec
+    return _build(spec, folder, loaded, resume=resume)
 
 
-def spec_of_scene(scene_path: str, data: str | None):
-    """The run of a scene XML: its integrator's model, its preset's training, its dataset."""
-    from reneus_mi.presets import preset
-    from reneus_mi.render.loading import load_scene, reneus_integrator
-    integrator = reneus_integrator(load_scene(scene_path), scene_path)
+def spec_of_scene(scene: str, data: str | None = None, *, train: dict | None = None,
+                  settings: Sequence[str] = ()) -> RunSpec:
+    """The record of a run of ``scene`` (as :func:`prepare` makes it), for a collection
+    (:func:`run_many`) or a trainer driven by hand (:func:`open_spec`)."""
+    return _spec(scene, load_scene(scene), data, train, settings)
+
+
+def _spec(path: str, scene: mi.Scene, data: str | None, train: dict | None, settings: Sequence[str]) -> RunSpec:
+    """The run of the loaded scene ``path``: its integrator's model, its preset's training, the
+    ``train`` fields and ``settings`` over them; its dataset ``data`` or the integrator's."""
+    integrator = reneus_integrator(scene, path)
     data = data or integrator.dataset
     if not data:
-        raise ReneusError(f'{scene_path}: no dataset: give the integrator '
+        raise ReneusError(f'{path}: no dataset: give the integrator '
                           '<string name="dataset" value="FOLDER"/> or pass --data')
     if not os.path.isabs(data):
-        data = os.path.join(os.path.dirname(os.path.abspath(scene_path)), data)
+        data = os.path.join(os.path.dirname(os.path.abspath(path)), data)
     config = ReconstructionConfig(model=integrator.model, train=preset(integrator.preset).train)
-    return RunSpec(scene_path, data, config, integrator.preset)
+    return RunSpec(path, data, _with(config, train, settings), integrator.preset)
 
 
-def make_trainer(spec: RunSpec, out: str, scene_path: str | None = None):
-    """The scene, dataset and trainer of ``spec``; the integrator renders ``spec.config.model``.
+def _with(config: ReconstructionConfig, train: dict | None, settings: Sequence[str]) -> ReconstructionConfig:
+    """``config`` with the ``train`` fields by name, then the ``settings`` (``PATH=VALUE``)."""
+    config = replace(config, **{f'train.{k}': v for k, v in (train or {}).items()})
+    return with_settings(config, settings)[0]
 
-    ``scene_path`` loads the scene from elsewhere than ``spec.scene`` (a run's own copy)."""
-    from reneus_mi.data import load_dataset
-    from reneus_mi.data.dataset import dataset_fingerprint
-    from reneus_mi.render.loading import check_field_reaches, load_scene, reneus_integrator
-    from reneus_mi.geometry.surface import check_resolution
-    from reneus_mi.train.pixel_sampler import BYTES_PER_PIXEL
-    from reneus_mi.train.trainer import BUDGET_RANGE, Trainer, check_batch
-    scene_path = scene_path or spec.scene
-    scene = load_scene(scene_path)
-    integrator = reneus_integrator(scene, scene_path)
+
+def open_spec(spec: RunSpec, out: str, *, resume: bool = False) -> Run:
+    """The run of a record in folder ``out``, the folder not checked: what :func:`prepare` and
+    :func:`run_many` build once they have checked it, and what tests and benchmarks that drive
+    a trainer step by step take."""
+    folder = RunFolder(out)
+    return _build(spec, folder, load_scene(folder.scene_to_load(spec.scene) if resume else spec.scene),
+                  resume=resume)
+
+
+def _open(spec: RunSpec, folder: RunFolder, *, resume: bool, moved: str | None = None) -> Run:
+    """The run of a record in ``folder``, checked (``moved``: its dataset, given anew)."""
+    if moved:
+        spec = dataclasses.replace(spec, data=os.path.abspath(moved))
+    folder.check(inputs=[spec.scene, spec.data], resume=resume)
+    scene = load_scene(folder.scene_to_load(spec.scene) if resume else spec.scene)
+    return _build(spec, folder, scene, resume=resume, moved=moved)
+
+
+def _build(spec: RunSpec, folder: RunFolder, scene: mi.Scene, *, resume: bool, moved: str | None = None) -> Run:
+    """The run of ``spec`` on the loaded ``scene``: its integrator set to the spec's model, the
+    configuration checked, the dataset loaded (``moved``: checked to be the run's own)."""
+    integrator = reneus_integrator(scene, spec.scene)
     integrator.configure(with_refinement(spec.config).model)
     train = spec.config.train
     check_batch(train.batch_rays * (BUDGET_RANGE if train.sample_budget else 1), spec.config.model,
@@ -118,18 +213,24 @@ def make_trainer(spec: RunSpec, out: str, scene_path: str | None = None):
                            max_size=train.max_image_size, extra_per_pixel=BYTES_PER_PIXEL)
     if spec.data_fingerprint is None:
         spec.data_fingerprint = dataset_fingerprint(dataset)
+    elif moved:
+        check_same_dataset(spec.data_fingerprint, dataset, f'--data {spec.data}: not the dataset this run was '
+                           'started on')
     frame = integrator.frame_of(scene)
     if frame.bounds is not None:
-        check_field_reaches(frame.center, frame.scale, *frame.bounds, scene_path)
-    if spec.mesh_bounds is not None:
-        frame = dataclasses.replace(frame, bounds=spec.mesh_bounds)
-    return Trainer(scene, dataset, spec.config.train, out, frame=frame)
+        check_field_reaches(frame.center, frame.scale, *frame.bounds, spec.scene)
+    return Run(spec, folder, scene, dataset, resume)
+
+
+def read_spec(out: str) -> RunSpec:
+    """The spec recorded in a run folder's ``config.json``."""
+    folder = RunFolder(out)
+    return RunSpec.from_dict(folder.read_config(), folder.config)
 
 
 def with_refinement(config: ReconstructionConfig) -> ReconstructionConfig:
     """The configuration whose model has the parameters that its training refines: the
     container's pose, and the light model that ``train.refine.light`` names."""
-    from reneus_mi.config import replace
     refine, render = config.train.refine, config.model.render
     changes = {}
     if refine.pose:
@@ -139,32 +240,6 @@ def with_refinement(config: ReconstructionConfig) -> ReconstructionConfig:
     if refine.any() and render.mode == 'neus':
         raise ReneusError('train.refine (ior, pose, light) needs a container: mode is neus')
     return replace(config, **changes)
-
-
-def run(spec: RunSpec, out: str, *, resume: bool = False, progress: bool = True) -> dict:
-    """Train ``spec`` in folder ``out`` (continuing its checkpoint with ``resume``); return the result."""
-    from reneus_mi.render.loading import copy_scene
-    from reneus_mi.train.trainer import TrainingError
-    folder = RunFolder(out)
-    folder.check_start(resume)
-    folder.check(inputs=[spec.scene, spec.data], resume=resume)
-    trainer = make_trainer(spec, out, folder.scene_to_load(spec.scene) if resume else spec.scene)
-    os.makedirs(out, exist_ok=True)
-    with folder.lock():
-        folder.remove_stray_temporaries()
-        if resume:
-            check_npz_file(folder.checkpoint, 'checkpoint')
-            trainer.resume()
-        else:
-            copy_scene(spec.scene, folder.scene_copy)
-        folder.clear_result()
-        folder.write_config(spec.to_dict())
-        try:
-            result = trainer.run(progress=progress)
-        except TrainingError as e:
-            result = {'failure': str(e), 'iterations': trainer.iteration}
-        folder.write_result(result)
-    return result
 
 
 def run_many(specs: dict[str, RunSpec], root: str, *, progress: bool = False) -> dict[str, dict]:
@@ -183,5 +258,7 @@ def run_many(specs: dict[str, RunSpec], root: str, *, progress: bool = False) ->
         if state.name in ('finished', 'failed'):
             results[name] = folder.read_result()
             continue
-        results[name] = run(spec, folder.path, resume=state.name == 'resumable', progress=progress)
+        resume = state.name == 'resumable'
+        folder.check_start(resume)
+        results[name] = _open(spec, folder, resume=resume).train(progress)
     return results

@@ -21,15 +21,16 @@ import warnings
 from dataclasses import asdict, dataclass
 
 import drjit as dr
+from drjit.opt import GradScaler
 import mitsuba as mi
 import numpy as np
+from tqdm import tqdm
 import trimesh
-from drjit.opt import GradScaler
 
 from reneus_mi import interrupt, limits
-from reneus_mi.train import checkpoint, losses
 from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
+from reneus_mi.data.images import write_image
 from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.fields import load_field
 from reneus_mi.geometry.mesh import gltf_from_world, write_glb, write_mesh
@@ -37,9 +38,11 @@ from reneus_mi.geometry.surface import components, field_colors, field_mesh
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.render.loading import reneus_integrator
 from reneus_mi.render.seeds import JITTER, step_seed
+from reneus_mi.render.step_state import StepState
+from reneus_mi.train import checkpoint, losses
 from reneus_mi.train.pixel_sampler import PixelSampler
 from reneus_mi.train.run_folder import RunFolder
-from reneus_mi.data.images import write_image
+from reneus_mi.train.silhouette import SilhouetteLoss
 from reneus_mi.variant import is_cuda
 
 #: Finest final mesh that following the field's detail chooses (a 512^3 grid and its
@@ -124,7 +127,8 @@ class Trainer:
     """One reconstruction: a scene, its dataset, the field and its optimiser."""
 
     def __init__(self, scene: mi.Scene, dataset: Dataset, cfg: TrainConfig, folder: RunFolder | str, *,
-                 frame: FieldFrame | None = None):
+                 frame: FieldFrame | None = None, resume: bool = False):
+        """``resume``: continue from the folder's checkpoint, exactly where it was written."""
         integrator = reneus_integrator(scene, 'the scene to train')
         if not 0 <= cfg.validation_view < len(dataset):
             raise ReneusError(f'validation_view={cfg.validation_view}: the dataset has {len(dataset)} views')
@@ -142,7 +146,6 @@ class Trainer:
                               'segmented from the photographs: they cannot correct its pose, which '
                               'then follows the refraction alone (weak for flat glass)')
             else:
-                from reneus_mi.train.silhouette import SilhouetteLoss
                 self.silhouette = SilhouetteLoss(dataset, self.surroundings.mesh())
         self.iteration = 0
         #: The step of the latest checkpoint this run wrote or resumed from (None: none yet).
@@ -151,7 +154,10 @@ class Trainer:
         self.elapsed = 0.0
         self.best_loss = float('inf')
         self.batch = cfg.batch_rays
-        self._setup_optimizer()
+        if resume:
+            self._load_checkpoint()
+        else:
+            self._setup_optimizer()
 
     def _setup_optimizer(self) -> None:
         cfg = self.cfg
@@ -213,8 +219,8 @@ class Trainer:
             return f'no checkpoint was written yet ({self.checkpoint_path})'
         return f'the checkpoint of step {self.saved_iteration} ({self.checkpoint_path}) is kept'
 
-    def resume(self) -> None:
-        """Continue from the output folder's checkpoint, exactly where it was written."""
+    def _load_checkpoint(self) -> None:
+        """The field, surroundings, optimiser and counters of the folder's checkpoint."""
         path = self.checkpoint_path
         if not os.path.isfile(path):
             raise ReneusError(f'{path}: no checkpoint to resume from')
@@ -244,7 +250,6 @@ class Trainer:
 
     def step(self) -> StepStats:
         """One optimisation step; raises TrainingError before a bad update is applied."""
-        from reneus_mi.plugins.reneus import StepState
         cfg, it, s = self.cfg, self.iteration, self.schedule_step()
         start = time.perf_counter()
         self.integrator.begin_step(StepState(step=it, schedule=s, cos_anneal_ratio=cfg.cos_anneal_ratio(s),
@@ -309,7 +314,6 @@ class Trainer:
     # ---------------------------------------------------------- validation
     def render_view(self, view: int, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Image (gamma-encoded) and normal map of a view, every ``stride``-th pixel."""
-        from reneus_mi.plugins.reneus import StepState
         index = self.pixels.view(view, stride)
         colors, normals = [], []
         with dr.suspend_grad():
@@ -382,7 +386,6 @@ class Trainer:
     def run(self, progress: bool = True) -> dict:
         """Train to ``cfg.iterations`` (or through the time budget), checkpointing and validating
         on the way."""
-        from tqdm import tqdm
         cfg = self.cfg
         os.makedirs(self.folder.path, exist_ok=True)
         start, psnrs = time.perf_counter(), []

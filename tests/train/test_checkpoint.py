@@ -41,8 +41,7 @@ def _resume_vs_unbroken(scene_xml, tmp_path, **cfg):
     assert_same_state(state, {k: v for k, v in saved.items() if k in state}, exact=True)
     del first  # killed
 
-    resumed = new_trainer(scene_xml, tmp_path / 'broken', **cfg)
-    resumed.resume()
+    resumed = new_trainer(scene_xml, tmp_path / 'broken', resume=True, **cfg)
     assert resumed.iteration == N
     run_steps(resumed, N)
     assert resumed.iteration == unbroken.iteration == 2 * N
@@ -131,8 +130,7 @@ def test_failed_write_leaves_previous_checkpoint(scene_xml, tmp_path, monkeypatc
         assert f.read() == before
     assert sorted(os.listdir(tmp_path)) == ['checkpoint.npz']  # no temporary file left
     assert checkpoint.load_meta(path)['iteration'] == 2
-    resumed = new_trainer(scene_xml, tmp_path)
-    resumed.resume()
+    resumed = new_trainer(scene_xml, tmp_path, resume=True)
     assert resumed.iteration == 2
 
 

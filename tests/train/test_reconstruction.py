@@ -36,7 +36,7 @@ def reconstruct(folder, mode, iterations, preset):
     spec = spec_of_scene(xml, None)
     spec.config = replace(spec.config, **{'train.iterations': iterations, 'train.validate_every': 0,
                                           'train.checkpoint_every': 0, 'train.mesh_resolution': 96})
-    trainer = runs.make_trainer(spec, str(folder / f'run_{preset}_{mode}'))
+    trainer = runs.open_spec(spec, str(folder / f'run_{preset}_{mode}')).trainer()
     gt = load_mesh(ds.gt_mesh)
     initial = chamfer(trainer.write_mesh(str(folder / f'initial_{preset}_{mode}.ply'), resolution=96), gt)
     result = trainer.run(progress=False)

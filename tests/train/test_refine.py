@@ -66,7 +66,7 @@ def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]
                         'pose': {'train.refine.pose': True}}[quantity])
     spec.config = replace(spec.config, **changes)
     out = str(folder / f'run_{quantity}_{"refined" if refine else "fixed"}')
-    result = runs.run(spec, out, progress=False)
+    result = runs.open_spec(spec, out).train(progress=False)
     gt = load_mesh(load_dataset(str(folder / 'box')).gt_mesh)
     return chamfer(load_mesh(result['mesh']), gt)['chamfer'], result, out
 

@@ -13,10 +13,10 @@ from tiny import tiny_spec
 
 
 def test_config_json_rebuilds_the_same_run(scene_xml, tmp_path):
-    first = runs.run(tiny_spec(scene_xml, iterations=3), str(tmp_path / 'a'), progress=False)
+    first = runs.open_spec(tiny_spec(scene_xml, iterations=3), str(tmp_path / 'a')).train(progress=False)
     spec = runs.read_spec(str(tmp_path / 'a'))
     assert spec.same_run(tiny_spec(scene_xml, iterations=3)) and spec.data_fingerprint['views'] == 12
-    again = runs.run(spec, str(tmp_path / 'b'), progress=False)
+    again = runs.open_spec(spec, str(tmp_path / 'b')).train(progress=False)
     assert first['iterations'] == again['iterations'] == 3
 
     def losses(folder):
@@ -26,7 +26,7 @@ def test_config_json_rebuilds_the_same_run(scene_xml, tmp_path):
     assert np.allclose(losses('a'), losses('b'), rtol=1e-4)
     # Another seed draws other rays.
     spec.config.train.seed = 1
-    runs.run(spec, str(tmp_path / 'c'), progress=False)
+    runs.open_spec(spec, str(tmp_path / 'c')).train(progress=False)
     assert not np.allclose(losses('a'), losses('c'), rtol=1e-2)
 
 
@@ -45,10 +45,10 @@ def test_resume_on_a_moved_dataset_is_checked(scene_xml, tmp_path):
     from reneus_mi import optimize
     data = os.path.join(os.path.dirname(scene_xml), 'box')
     out = tmp_path / 'run'
-    runs.run(tiny_spec(scene_xml, iterations=2), str(out), progress=False)
+    runs.open_spec(tiny_spec(scene_xml, iterations=2), str(out)).train(progress=False)
     moved = tmp_path / 'moved'
     shutil.copytree(data, moved)
-    assert runs.read_spec(str(out)).with_data(str(moved)).data == str(moved)
+    assert runs.prepare(str(out), data=str(moved), resume=True).spec.data == str(moved)
     other = tmp_path / 'other'
     shutil.copytree(data, other)
     meta = json.loads((other / 'transforms.json').read_text())

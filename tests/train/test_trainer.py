@@ -51,7 +51,7 @@ def test_training_steps_reuse_their_kernels(scene_xml, tmp_path, budget, refine)
                                           'train.anneal_end': 50, 'train.sample_budget': budget,
                                           'model.sampler.occupancy_update_every': 1000,
                                           'train.refine.ior': refine, 'train.refine.after': 0})
-    trainer = runs.make_trainer(spec, str(tmp_path / 'run'))
+    trainer = runs.open_spec(spec, str(tmp_path / 'run')).trainer()
 
     sizes = (256, 512, 768)
     for i in range(8):
