@@ -79,7 +79,7 @@ TEXTURE_PX_PER_MM = 10.0
 PAPER_WHITE, INK_BLACK = 0.8, 0.04
 #: Radiance of the light tent (linear): uniform, as the project's model assumes.
 AMBIENT = 1.0
-#: Gap (mm) between the block's bottom and the print (reneus_mi.capture.container.CONTACT_GAP).
+#: Gap (mm) between the block's bottom and the print (reneus_mi.data.dataset.CONTACT_GAP).
 CONTACT_GAP = 0.1
 #: Index of refraction of the block (--ior).
 IOR = 1.45

@@ -34,6 +34,12 @@ from reneus_mi.render.surroundings import LIGHTS
 
 MODES = ('reneus', 'neus', 'neus_plus')
 TERMINALS = ('trace', 'ambient', 'black')
+#: The paper's camera response: a photograph holds C^(1/GAMMA) of the linear radiance C.
+GAMMA = 2.2
+#: The paper's glass: the IOR of a container whose data state none (and of synthetic data).
+IOR = 1.45
+#: The paper's ambient radiance C_out (linear, every channel).
+AMBIENT = 0.8
 
 
 @dataclass
@@ -51,7 +57,7 @@ class RenderConfig:
     the same as 'ambient' in uniform light), 'ambient' (straight on: the backdrop or C_out; wrong
     where the glass reflects totally toward a board) or 'black' (what Mitsuba's path tracer
     computes with max_depth = D_re + 1)."""
-    gamma: float = 2.2
+    gamma: float = GAMMA
     """Output is C^(1/gamma), the paper's camera response; 1 gives linear radiance."""
     rr_threshold: float = 0.0
     """Russian roulette on ray-tree branches whose weight β is below this: such a branch is

@@ -10,7 +10,7 @@ import os
 import sys
 
 from reneus_mi.data.objects import CONTAINERS, OBJECTS
-from reneus_mi.data.synth import DEFAULT_MAX_DEPTH, DEFAULT_SPP, ENVIRONMENT, IOR, SUBSETS, make_dataset
+from reneus_mi.data.synth import DEFAULT_MAX_DEPTH, DEFAULT_SPP, AMBIENT, IOR, SUBSETS, make_dataset
 from reneus_mi import interrupt
 from reneus_mi.errors import exit_on_error
 
@@ -39,8 +39,8 @@ def main(argv: list[str] | None = None) -> int:
                         help='glass around the object: a block, a block with rounded edges or a '
                              'cylinder jar (default box)')
     parser.add_argument('--ior', type=float, default=IOR, help=f'IOR of the glass (default {IOR})')
-    parser.add_argument('--ambient', type=float, default=ENVIRONMENT,
-                        help=f'radiance of the uniform environment (default {ENVIRONMENT})')
+    parser.add_argument('--ambient', type=float, default=AMBIENT,
+                        help=f'radiance of the uniform environment (default {AMBIENT})')
     parser.add_argument('--subsets', nargs='+', choices=SUBSETS, default=list(SUBSETS),
                         help='subsets to render (default: both)')
     args = parser.parse_args(argv)

@@ -14,14 +14,6 @@ import trimesh
 
 from reneus_mi.data.objects import ROUNDING, container_mesh
 
-#: Gap (mm) between the container's bottom and the board in rendered scenes (the board lies
-#: this far into the table): a sheet of paper under glass is never in optical contact, and
-#: coplanar surfaces confuse a ray tracer. It must exceed the offset by which Mitsuba (and
-#: ``reneus``) start a ray off a surface, (1 + max |p|) x 8.9e-5: 0.027 mm at 300 mm from the
-#: board's origin; with 0.01 mm the rays leaving the glass through its bottom started beyond
-#: the board and saw the tent below it.
-CONTACT_GAP = 0.1
-
 
 def _inner_half(shape: str, size) -> np.ndarray:
     """Half-extents to give :func:`container_mesh` for an outer size ``size`` (W, D, H)."""

@@ -32,7 +32,8 @@ import trimesh
 
 from reneus_mi import guards
 from reneus_mi.capture.board import Board
-from reneus_mi.capture.container import CONTACT_GAP, board_mesh, local_mesh
+from reneus_mi.capture.container import board_mesh, local_mesh
+from reneus_mi.data.dataset import CONTACT_GAP
 from reneus_mi.capture.settings import CAPTURE_FILE, CaptureSettings, to_json
 from reneus_mi.data.cameras import look_at
 from reneus_mi.geometry.container import shading_mesh

@@ -22,13 +22,24 @@ import dataclasses
 import os
 import shutil
 
+import cv2
 import numpy as np
 
-from reneus_mi.errors import ReneusError
-from reneus_mi.data.checks import check_ior, check_views
 from reneus_mi.data.cameras import check_c2w, check_K, pixel_rays
+from reneus_mi.data.checks import check_ior, check_views
+from reneus_mi.data.images import read_image
 from reneus_mi.data.masks import container_masks
+from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.container import bounding_sphere, load_container, mesh_type
+
+
+#: Gap (mm) between the container's bottom and the board in rendered scenes (the board lies
+#: this far into the table): a sheet of paper under glass is never in optical contact, and
+#: coplanar surfaces confuse a ray tracer. It must exceed the offset by which Mitsuba (and
+#: ``reneus``) start a ray off a surface, (1 + max |p|) x 8.9e-5: 0.027 mm at 300 mm from the
+#: board's origin; with 0.01 mm the rays leaving the glass through its bottom started beyond
+#: the board and saw the tent below it.
+CONTACT_GAP = 0.1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,7 +64,6 @@ class PrintedBoard:
     def radiance(self, max_texels: int) -> np.ndarray:
         """(h, w, 3) float32 linear radiance of the print, at most ``max_texels`` along its longer
         side (area-averaged, as a coarser look at the print)."""
-        import cv2
         h, w = self.pattern.shape
         scale = min(1.0, max_texels / max(h, w))
         pattern = self.pattern if scale == 1.0 else cv2.resize(
@@ -235,7 +245,6 @@ def read_extras(meta: dict, root: str, where: str) -> dict:
 
 def _read_capture(capture, root: str, where: str) -> dict:
     """The units, frame and printed board of a ``capture`` entry (see the module docstring)."""
-    from reneus_mi.data.images import read_image
     if not isinstance(capture, dict):
         raise ReneusError(f'{where}: expected an object with units, frame and board, got {capture!r}')
     out = {key: capture[key] for key in ('units', 'frame') if isinstance(capture.get(key), str)}

@@ -12,7 +12,7 @@ sphere the field lives in (``field_center``, ``field_scale``, see
 
 A dataset whose capture measured the printed board the container stands on
 (:class:`~reneus_mi.data.dataset.PrintedBoard`) gets it as a backdrop (issue #16, item 5):
-a ``rectangle`` over the print, :data:`~reneus_mi.capture.container.CONTACT_GAP` under the
+a ``rectangle`` over the print, :data:`~reneus_mi.data.dataset.CONTACT_GAP` under the
 container, facing the cameras, with an ``area`` emitter whose radiance is the print's
 measured linear radiance (a bitmap written beside the scene, ``<scene>_board.exr``) and a
 black ``diffuse`` BSDF: Mitsuba's ``path`` and the ``reneus`` integrator (which takes a
@@ -29,7 +29,8 @@ import xml.etree.ElementTree as ET
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.data.dataset import Dataset
+from reneus_mi.config import AMBIENT, IOR
+from reneus_mi.data.dataset import CONTACT_GAP, Dataset
 from reneus_mi import guards
 from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
 from reneus_mi.geometry.container import load_container, mesh_type, mitsuba_reads
@@ -37,10 +38,6 @@ from reneus_mi.errors import ReneusError
 from reneus_mi.data.images import write_image
 from reneus_mi.io import atomic_export, atomic_open
 
-#: Container IOR when the dataset states none (the paper's synthetic glass).
-DEFAULT_IOR = 1.45
-#: Radiance of the ambient light (the paper's C_out for synthetic data).
-AMBIENT_RADIANCE = 0.8
 #: Samples per pixel of the written sampler.
 SAMPLE_COUNT = 16
 #: Relative focal-length difference above which fx != fy is reported.
@@ -112,7 +109,6 @@ def board_to_world(board) -> np.ndarray:
     """4x4 world transform of Mitsuba's ``rectangle`` ([-1, 1]^2, uv = (x, y) / 2 + 1/2) onto the
     print of ``board`` (a :class:`~reneus_mi.data.dataset.PrintedBoard`), ``CONTACT_GAP`` into the
     table: u along the board's x, v along its y, as the pattern's columns and rows."""
-    from reneus_mi.capture.container import CONTACT_GAP
     w, h = board.size_mm
     local = np.diag([0.5 * w, 0.5 * h, 1.0, 1.0])
     local[:3, 3] = [0.5 * w, 0.5 * h, CONTACT_GAP]
@@ -134,8 +130,8 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
     shape_type = None if container is None else mesh_type(container)
     ior = ds.ior
     if ior is None and ds.container is not None:
-        warnings.warn(f"{ds.root}: dataset states no container IOR; using {DEFAULT_IOR}")
-        ior = DEFAULT_IOR
+        warnings.warn(f"{ds.root}: dataset states no container IOR; using {IOR}")
+        ior = IOR
 
     scene = ET.Element('scene', version='3.0.0')
     integ = ET.SubElement(scene, 'integrator', type=integrator, id='field')
@@ -164,7 +160,7 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
     ET.SubElement(film, 'rfilter', type='box')
 
     if ambient is None:
-        ambient = ds.ambient if ds.ambient is not None else AMBIENT_RADIANCE
+        ambient = ds.ambient if ds.ambient is not None else AMBIENT
     emitter = ET.SubElement(scene, 'emitter', type='constant')
     ET.SubElement(emitter, 'rgb', name='radiance', value=', '.join(map(_num, np.broadcast_to(ambient, (3,)))))
 
@@ -197,7 +193,7 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
 def write_scene(ds: Dataset, path: str, *, integrator: str = 'reneus', ambient: float | None = None,
                 board: bool = True, overwrite: bool = False, **integrator_settings) -> None:
     """Write the Mitsuba 3 scene XML of ``ds`` to ``path``, lit by a constant ``ambient``
-    (default: the dataset's measured one, else :data:`AMBIENT_RADIANCE`).
+    (default: the dataset's measured one, else :data:`AMBIENT`).
 
     A dataset with a printed board gets it in the scene, its radiance in
     ``<scene>_board.exr`` beside it (``board=False``: the paper's model, the board

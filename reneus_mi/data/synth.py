@@ -38,17 +38,12 @@ from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.data.masks import container_masks
 from reneus_mi.geometry.container import container_shape, shading_mesh
+from reneus_mi.config import AMBIENT, GAMMA, IOR
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_folder, atomic_mitsuba_write, atomic_path, atomic_write_text
 from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 
-#: Index of refraction of the glass box.
-IOR = 1.45
-#: Radiance of the constant environment (linear, every channel).
-ENVIRONMENT = 0.8
-#: Exponent of the display encoding of the stored images.
-GAMMA = 2.2
 #: Distance of the cameras from the origin.
 CAMERA_DISTANCE = 5.0
 #: Samples per pixel: about 0.003 per-pixel noise (display units) inside the
@@ -104,7 +99,7 @@ def _sensor(K: np.ndarray, c2w: np.ndarray, res: int) -> mi.Sensor:
 
 
 def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_DEPTH, *,
-               ior: float = IOR, ambient: float = ENVIRONMENT) -> dict:
+               ior: float = IOR, ambient: float = AMBIENT) -> dict:
     """The Mitsuba scene: object (diffuse, vertex-colour albedo), glass container, environment.
 
     The container bends light by the normals the ``reneus`` integrator gives its file
@@ -182,7 +177,7 @@ def _noise(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
 def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int = DEFAULT_SPP,
                  seed: int = 0, max_depth: int = DEFAULT_MAX_DEPTH, subsets=SUBSETS,
                  margin: float = 0.15, container: str = 'box', ior: float = IOR,
-                 ambient: float = ENVIRONMENT, write: bool = True) -> dict:
+                 ambient: float = AMBIENT, write: bool = True) -> dict:
     """Render a synthetic dataset of ``obj`` into ``out_dir``.
 
     ``obj`` is a name of :data:`reneus_mi.data.objects.OBJECTS`, a mesh file or a

@@ -13,7 +13,7 @@ from reneus_mi.data import load_dataset, objects, synth
 from reneus_mi.data.masks import container_masks
 from reneus_mi.synth import main as synth_main
 
-BACKGROUND = synth.ENVIRONMENT ** (1.0 / synth.GAMMA)
+BACKGROUND = synth.AMBIENT ** (1.0 / synth.GAMMA)
 
 
 @pytest.mark.parametrize('name', sorted(objects.OBJECTS))
