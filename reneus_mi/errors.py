@@ -13,6 +13,11 @@ error as its cause. :func:`user_message` digs the plugin's message out.
 from __future__ import annotations
 
 import contextlib
+import math
+import sys
+import typing
+
+from reneus_mi import interrupt
 
 
 class ReneusError(ValueError):
@@ -71,8 +76,6 @@ def exit_on_error(*extra: type[BaseException]):
 
 
 def _interrupted():
-    import sys
-    from reneus_mi import interrupt
     print(interrupt.message(), file=sys.stderr)
     raise SystemExit(interrupt.STATUS) from None
 
@@ -89,8 +92,6 @@ def _owner(obj) -> str:
 
 def check_numbers(obj, *, positive=(), at_least_zero=(), finite=()) -> None:
     """One-line errors for numeric fields of a config dataclass out of range or of the wrong type."""
-    import math
-    import typing
     hints = typing.get_type_hints(type(obj))
     for names, test, expected in ((positive, lambda v: v > 0, '> 0'),
                                   (at_least_zero, lambda v: v >= 0, '>= 0'),

@@ -13,14 +13,14 @@ import sys
 
 from reneus_mi import guards
 from reneus_mi.errors import exit_on_error
+from reneus_mi.fields import load_field
 from reneus_mi.geometry.mesh import MESH_EXTENSIONS, write_mesh
 from reneus_mi.geometry.surface import POSTPROCESS_MODES, check_resolution, components, field_mesh
 from reneus_mi.io import check_npz_file
+from reneus_mi.train import checkpoint
 
 
 def main(argv=None) -> int:
-    from reneus_mi.fields import load_field
-    from reneus_mi.train import checkpoint
 
     parser = argparse.ArgumentParser(prog='python -m reneus_mi.extract', description=__doc__.splitlines()[0])
     parser.add_argument('checkpoint', help='checkpoint.npz of a reconstruction')

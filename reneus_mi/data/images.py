@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import os
 
+import cv2
 import mitsuba as mi
 import numpy as np
+import OpenEXR
 
 from reneus_mi import limits
 from reneus_mi.errors import ReneusError
@@ -59,7 +61,6 @@ def image_size(path: str, upright: bool = True) -> tuple[int, int]:
     if not os.path.isfile(path):
         raise ReneusError(f"{path}: image file is missing")
     if os.path.splitext(path)[1].lower() == '.exr':
-        import OpenEXR
         try:
             lo, hi = OpenEXR.File(path, header_only=True).header()['dataWindow']
         except Exception as e:  # the binding raises several kinds for unreadable files
@@ -120,7 +121,6 @@ def resize(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """``image`` (H,W[,C]) at ``size`` (width, height), shrunk by area averaging."""
     if image.shape[1::-1] == tuple(size):
         return image
-    import cv2
     return cv2.resize(image, tuple(size), interpolation=cv2.INTER_AREA)
 
 
@@ -167,7 +167,6 @@ def read_image(path: str, upright: bool = True) -> tuple[np.ndarray, np.ndarray 
 
 def _read_tiff(path: str) -> tuple[np.ndarray, bool]:
     """An 8- or 16-bit TIFF as (H,W,4) RGBA float32 display values, and whether it had alpha."""
-    import cv2
     data = cv2.imread(path, cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
     if data is None or data.dtype not in (np.uint8, np.uint16):
         kind = 'unreadable' if data is None else f'{data.dtype} samples'

@@ -16,6 +16,11 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
+from skimage.measure import marching_cubes
 import trimesh
 
 from reneus_mi import limits
@@ -105,7 +110,6 @@ def extract_mesh(field: Field, lo, hi, resolution=256, *, to_world=None, gap: fl
     ``to_world`` mirrors. With ``gap`` > 0 (SDF units) the pieces that the field
     joins below ``gap`` are joined first (:func:`bridge`).
     """
-    from skimage.measure import marching_cubes
 
     lo, hi = _triple(lo, 'lo'), _triple(hi, 'hi')
     grid = sdf_grid(field, lo, hi, resolution)
@@ -145,9 +149,6 @@ def bridge(grid: np.ndarray, gap: float) -> np.ndarray:
     joined only through values above ``gap`` stay apart. Returns ``grid`` itself when
     nothing is joined, else a copy.
     """
-    from scipy import ndimage
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import dijkstra
 
     solid = grid < 0
     pieces, n_pieces = ndimage.label(solid)
@@ -219,8 +220,6 @@ def bridge(grid: np.ndarray, gap: float) -> np.ndarray:
 
 def component_labels(mesh: trimesh.Trimesh) -> np.ndarray:
     """The connected component (through shared edges, vertices welded by position) of each face."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
 
     welded = mesh.copy()
     welded.merge_vertices(merge_tex=True, merge_norm=True)
@@ -252,7 +251,6 @@ def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     component within :data:`CLEAN_GAP` median edge lengths of what is kept (thin parts
     that noise cut off lie next to the body: kept link by link) unless it is a speck, and
     any component of at least :data:`CLEAN_SHARE` of the largest's area (a real second part)."""
-    from scipy.spatial import cKDTree
 
     if len(mesh.faces) == 0:
         return mesh.copy()

@@ -42,6 +42,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+import trimesh
 
 from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.container import CREASE_ANGLE, shading_normals
@@ -271,7 +272,6 @@ class Surroundings:
 
     def mesh(self):
         """The container as the scene loaded it (world coordinates), as one trimesh."""
-        import trimesh
         parts = []
         for shape in self.shapes:
             params = mi.traverse(shape)
@@ -283,7 +283,6 @@ class Surroundings:
         """The container where its pose puts it (as loaded without one), one vertex per
         triangle corner carrying the normal light is bent by there: written out, the file
         refracts as this container does (a refined rounded block keeps its smooth normals)."""
-        import trimesh
         parts = []
         for shape, table in self.normals.items():
             params = mi.traverse(shape)

@@ -29,7 +29,6 @@ skip, continue or report each one.
 """
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import shutil
@@ -38,9 +37,12 @@ import time
 import warnings
 from dataclasses import dataclass
 
+import fcntl
+
 from reneus_mi import guards
 from reneus_mi.errors import ReneusError
 from reneus_mi.io import atomic_write_text, is_temporary
+from reneus_mi.train.checkpoint import load_meta
 
 #: The states of a run folder, as :meth:`RunFolder.state` names them.
 STATES = ('new', 'running', 'resumable', 'finished', 'failed')
@@ -176,7 +178,6 @@ class RunFolder:
 
     def checkpoint_step(self) -> int | None:
         """The step of the folder's checkpoint, None when it has none that can be read."""
-        from reneus_mi.train.checkpoint import load_meta
         try:
             return int(load_meta(self.checkpoint)['iteration'])
         except (ReneusError, KeyError, TypeError, ValueError):
