@@ -32,8 +32,7 @@ from reneus_mi.render.ray_samplers import SamplerConfig
 #: NeuS's field at CPU size (the small and the cpu preset's architecture differ in width only).
 _SMALL_NEUS = dict(layers=4, color_layers=2, multires=4, multires_view=2, init_radius=0.3)
 #: The hash-grid presets' sampling and training. λ1 = 0.1 (the paper's L_trans weight) empties a
-#: hash grid: on the small comparison's statuette, 300 steps gave Chamfer-L1 x100 23.0 with it
-#: and 2.1 with 0.01 (the small NeuS field: 7.3).
+#: hash grid (docs/constants.md).
 _GRID_SAMPLER = SamplerConfig(n_coarse=24, n_fine=8, n_upsample_steps=2, occupancy_resolution=64)
 _GRID_TRAIN = dict(batch_rays=1024, learning_rate=1e-3, warm_up=50, trans_weight=0.01)
 

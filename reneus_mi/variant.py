@@ -8,9 +8,8 @@ Dr.Jit's expansion of scatter-reductions is switched off for the process
 scatter-add's target per thread and compile the target's width into the
 kernel. The reverse mode of every gather is such a scatter-add, and the ray
 tree's arrays (live rays, inside segments) change width every step: once a
-refined IOR or pose sends gradients through them, a kernel was compiled anew
-at almost every step (3-8 s each; refining ran at a third of the plain speed).
-Plain atomics measured no slower for the field's own gradients.
+refined IOR or pose sends gradients through them, a kernel would be compiled anew
+at almost every step (docs/constants.md).
 """
 from __future__ import annotations
 

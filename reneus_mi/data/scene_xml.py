@@ -11,7 +11,7 @@ sphere the field lives in (``field_center``, ``field_scale``, see
 :meth:`reneus_mi.data.Dataset.normalization`).
 
 A dataset whose capture measured the printed board the container stands on
-(:class:`~reneus_mi.data.dataset.PrintedBoard`) gets it as a backdrop (issue #16, item 5):
+(:class:`~reneus_mi.data.dataset.PrintedBoard`) gets it as a backdrop:
 a ``rectangle`` over the print, :data:`~reneus_mi.data.dataset.CONTACT_GAP` under the
 container, facing the cameras, with an ``area`` emitter whose radiance is the print's
 measured linear radiance (a bitmap written beside the scene, ``<scene>_board.exr``) and a

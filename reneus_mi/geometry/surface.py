@@ -48,10 +48,9 @@ BRIDGE_CELLS = 2.0
 #: its SDF near zero everywhere), not a surface's shell (about 1 % at 512^3): not bridged, which
 #: also bounds the search graph's memory.
 BRIDGE_MAX_SHARE = 0.05
-#: Bytes per grid point of marching cubes: the float32 SDF grid, skimage's
-#: working copies, the vertices and faces. Measured (peak RSS, a sphere,
-#: resolution 64 -> 384): 4.9; doubled and more for surfaces with more faces;
-#: and :func:`bridge`'s two label grids and its copy of the SDF.
+#: Bytes per grid point of marching cubes: the float32 SDF grid, skimage's working copies,
+#: the vertices and faces, and :func:`bridge`'s label grids and its copy of the SDF
+#: (docs/constants.md).
 BYTES_PER_GRID_POINT = 24
 
 

@@ -23,7 +23,7 @@ Light: ``ambient`` is one RGB radiance for every direction (the paper's C_out);
 ``sh`` a real spherical-harmonics expansion up to order 2 (9 RGB
 coefficients), for rooms that are not uniform.
 
-Backdrop (beyond the paper, issue #16 item 5): shapes of the scene with an ``area``
+Backdrop (beyond the paper): shapes of the scene with an ``area``
 emitter, e.g. the printed board the container stands on. A ray that leaves the container
 takes the radiance of the backdrop it meets, and C_out only where it meets none: rays
 leaving a block through its bottom see the board, not the tent, and the paper's model
@@ -198,9 +198,8 @@ class BoardShading:
     container), but under and around a container the photographs show it shaded: the glass
     passes (1 - R)^2 of the tent's light, focuses some into caustics, and the specimen casts a
     shadow. Seen from every view through the glass, a board point's gain is one value, so the
-    photographs fix it; without it the field can only darken the glass itself (a simulated
-    40 mm block at 960x640: 2.98 mm Chamfer-L1 without, 0.665 mm with it, both measured while
-    batches still repeated their pixels). Every backdrop shape shares the grid through its own uv."""
+    photographs fix it; without it the field can only darken the glass itself, and fog fills
+    the block (docs/constants.md). Every backdrop shape shares the grid through its own uv."""
 
     NAME = 'board.shading'
 

@@ -68,11 +68,8 @@ def next_batch(cfg: TrainConfig, samples_per_ray: float) -> int:
     return int(min(max(n, lo), cfg.batch_rays * BUDGET_RANGE))
 
 
-#: Bytes per sample slot (ray x segment x sample) of a training step, a floor.
-#: Measured peak RSS on the CPU (3 steps, statuette 16x16): a 16-wide field
-#: with 8 + 8 samples and 3 segments grew by 4.6 KB per ray from 1024 to 32768
-#: rays, i.e. 96 B per slot; a 64-wide, 6-layer field with 32 + 32 samples
-#: peaked at 694 MB for 16384 rays (<= 220 B per slot, compilation included).
+#: Bytes per sample slot (ray x segment x sample) of a training step: a floor of what the
+#: step's arrays take (docs/constants.md).
 BYTES_PER_SAMPLE_SLOT = 64
 
 
