@@ -1,4 +1,4 @@
-"""Poses from a COLMAP sparse model instead of a board (issue #16, item 7).
+"""Poses from a COLMAP sparse model instead of a board.
 
 When the photographs were posed by structure from motion on their surroundings, COLMAP's
 sparse model (``cameras``, ``images``, read by ``pycolmap``, text or binary) gives each

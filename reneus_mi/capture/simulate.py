@@ -1,4 +1,4 @@
-"""A photographer's capture, rendered: the test bed of :mod:`reneus_mi.capture` (issue #16, item 9).
+"""A photographer's capture, rendered: the test bed of :mod:`reneus_mi.capture`.
 
 Mitsuba's ``path`` integrator renders the paper's real set-up (Sec. 4, "Real Dataset"): a
 specimen inside a glass container standing on a printed ChArUco board (OpenCV's pattern as a
