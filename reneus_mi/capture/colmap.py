@@ -25,7 +25,7 @@ import numpy as np
 
 from reneus_mi import guards
 from reneus_mi.capture import photos
-from reneus_mi.capture.dataset import write_views
+from reneus_mi.capture.export import write_views
 from reneus_mi.data.checks import check_ior
 from reneus_mi.data.images import image_size
 from reneus_mi.data.undistort import distortion, output_size, pinhole_K, undistort

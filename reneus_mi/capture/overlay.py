@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from reneus_mi.capture.board import Board
-from reneus_mi.capture.container import pose_matrix
+from reneus_mi.capture.placement import pose_matrix
 from reneus_mi.data.undistort import opencv_K
 from reneus_mi.io import atomic_path
 

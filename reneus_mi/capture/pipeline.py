@@ -12,7 +12,7 @@ capture folders.
    the container's place from the first one.
 6. Measure each photograph's exposure, C_out and the print's brightness
    (:mod:`~reneus_mi.capture.exposure`) and normalise the exposures.
-7. Write an overlay per photograph, then the dataset (:mod:`~reneus_mi.capture.dataset`;
+7. Write an overlay per photograph, then the dataset (:mod:`~reneus_mi.capture.export`;
    its ``transforms.json`` last: a folder that has one holds the whole dataset).
 """
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 
 from reneus_mi import guards
 from reneus_mi.capture import board as board_mod
-from reneus_mi.capture import dataset, photos, settings as settings_mod
+from reneus_mi.capture import export, photos, settings as settings_mod
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.calibrate import Calibration, calibrate
 from reneus_mi.capture.exposure import measure
@@ -101,7 +101,7 @@ def load_views(files: dict, cal: Calibration, out_size, K_out) -> tuple[np.ndarr
 def seen_through(cal: Calibration, shape: str, size, pose):
     """``exclude`` for :func:`calibrate`: corners inside the container's projection (with the
     lens, in the photograph) or within :data:`EXCLUSION_MARGIN_PX` of it."""
-    from reneus_mi.capture.container import board_mesh
+    from reneus_mi.capture.placement import board_mesh
     hull = np.asarray(board_mesh(shape, size, pose).convex_hull.vertices)
     by_name = {v.name: i for i, v in enumerate(cal.views)}
 
@@ -129,7 +129,7 @@ def _warn_uncovered(names, valid, K, c2w, s, pose) -> None:
 def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
     """The whole capture (see the module docstring); returns what the report holds."""
     start = time.perf_counter()
-    out = guards.check_output_dir(out, inputs=[photos_dir], allow=dataset.OUTPUTS, what='dataset folder')
+    out = guards.check_output_dir(out, inputs=[photos_dir], allow=export.OUTPUTS, what='dataset folder')
     board = Board.from_settings(s)
     files = photos.list_photos(photos_dir)
     by_name = {os.path.basename(f): f for f in files}
@@ -146,7 +146,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
     except ReneusError as e:
         # The user must see why: the overlays, with what each photograph showed.
         reg_failed = getattr(e, 'registration', None)
-        dataset.write_overlays(out, images, K_out, c2w, board, cal, s, measured=getattr(e, 'measured', None),
+        export.write_overlays(out, images, K_out, c2w, board, cal, s, measured=getattr(e, 'measured', None),
                                pose=reg_failed.pose if reg_failed else None)
         raise ReneusError(f'{e} (overlays in {os.path.join(out, "overlays")})') from None
     # Corners seen through the glass leave the calibration; the place is refined from the first.
@@ -161,8 +161,8 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
     light = measure(images, valid, K_out, c2w, board, reg.measured, names)
     _warn_uncovered(names, valid, K_out, c2w, s, reg.pose)
     # The overlays first: a transforms.json, written last, says that the dataset is whole.
-    dataset.write_overlays(out, images, K_out, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
+    export.write_overlays(out, images, K_out, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
-    report = dataset.write(out, s, board, cal, K_out, light.normalise(images), reg, light)
+    report = export.write(out, s, board, cal, K_out, light.normalise(images), reg, light)
     report['seconds'] = time.perf_counter() - start
     return report

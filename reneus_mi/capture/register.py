@@ -9,7 +9,7 @@ the convex hull of its projected vertices, and the disagreeing region of each vi
 and filled, is a measurement of that silhouette.
 
 The container's size is measured and it stands on the board, so three numbers remain: its
-place ``(x, y, yaw)`` (:mod:`reneus_mi.capture.container`). :func:`register` finds them by
+place ``(x, y, yaw)`` (:mod:`reneus_mi.capture.placement`). :func:`register` finds them by
 fitting the projected silhouettes to the measured ones over all views at once, through each
 view's signed distance map to the measured silhouette's outline (as
 :mod:`reneus_mi.train.silhouette` does for the trainer): a start from the rays through the
@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from reneus_mi.capture.board import Board
-from reneus_mi.capture.container import local_mesh, pose_matrix, symmetry
+from reneus_mi.capture.placement import local_mesh, pose_matrix, symmetry
 from reneus_mi.config import RenderConfig
 from reneus_mi.errors import ReneusError
 

@@ -12,7 +12,7 @@ neither format has a field for are stored under the same JSON keys in both:
   normalisation matrix, so that a NeuS dataset survives a round trip;
 - ``"ambient"``: the ambient light C_out measured with the photographs (linear, one number
   or RGB), which the scene writer then uses (``reneus_mi.capture`` writes it);
-- ``"capture"``: what ``reneus_mi.capture`` knows of the world (:mod:`reneus_mi.capture.dataset`):
+- ``"capture"``: what ``reneus_mi.capture`` knows of the world (:mod:`reneus_mi.capture.export`):
   ``units`` and ``frame`` of the coordinates, and ``board``, the printed board the container
   stands on (:class:`PrintedBoard`), which the scene writer puts into the scene.
 """

@@ -4,14 +4,11 @@
 (closed, outward normals, parts apart: :func:`~reneus_mi.geometry.container.check_scene_containers`);
 :func:`reneus_integrator` is the one check that a scene renders with ``reneus``;
 :func:`check_render_size` and :func:`check_field_reaches` refuse a render or a
-reconstruction that cannot work before it starts; :func:`copy_scene` gives a run a
-copy of its scene that no later move of the scene or its data can break.
+reconstruction that cannot work before it starts.
 """
 from __future__ import annotations
 
 import os
-import shutil
-import xml.etree.ElementTree as ET
 
 import mitsuba as mi
 import numpy as np
@@ -19,7 +16,6 @@ import numpy as np
 from reneus_mi import limits
 from reneus_mi.errors import ReneusError, user_message
 from reneus_mi.geometry.container import check_scene_containers
-from reneus_mi.io import atomic_folder
 
 #: Bytes per sample of a render in flight: ray, surface interaction, colour
 #: and the integrator's per-lane state. An estimate (not measured) that only
@@ -76,37 +72,3 @@ def check_field_reaches(center, scale: float, lo, hi, where: str) -> None:
                           f' .. {np.round(hi, 4).tolist()}), so no ray would reach the field; '
                           'expected field_center/field_scale around the container (python -m '
                           'reneus_mi.scene writes them)')
-
-
-def copy_scene(path: str, folder: str) -> str:
-    """Copy the scene XML ``path`` and every file it names (its ``filename`` properties:
-    container meshes, textures) into ``folder``, the references rewritten to the copies;
-    return the copy's XML.
-
-    A run keeps such a copy and resumes from it, so the scene file, the container files
-    beside it and the dataset holding them may all move after the run started (``--resume
-    --data MOVED``). A reference that Mitsuba resolves only when loading (``$name``, a file
-    on its search path) is kept as written; the integrator's ``dataset`` is made absolute.
-    """
-    base = os.path.dirname(os.path.abspath(path))
-    try:
-        tree = ET.parse(path)
-    except (OSError, ET.ParseError) as e:
-        raise ReneusError(f'{path}: cannot read the scene ({e})') from None
-    with atomic_folder(folder) as work:
-        copies: dict[str, str] = {}
-        for element in tree.iter('string'):
-            name, value = element.get('name'), element.get('value', '')
-            if name not in ('filename', 'dataset') or '$' in value or not value:
-                continue
-            source = os.path.abspath(os.path.join(base, value))
-            if name == 'dataset':
-                element.set('value', source)
-            elif os.path.isfile(source):
-                if source not in copies:
-                    copies[source] = f'{len(copies)}_{os.path.basename(source)}'
-                    shutil.copyfile(source, os.path.join(work, copies[source]))
-                element.set('value', copies[source])
-        with open(os.path.join(work, 'scene.xml'), 'wb') as f:
-            tree.write(f, encoding='utf-8', xml_declaration=True)
-    return os.path.join(folder, 'scene.xml')

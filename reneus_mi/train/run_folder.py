@@ -35,13 +35,14 @@ import shutil
 import socket
 import time
 import warnings
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import fcntl
 
 from reneus_mi import guards
 from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_write_text, is_temporary
+from reneus_mi.io import atomic_folder, atomic_write_text, is_temporary
 from reneus_mi.train.checkpoint import load_meta
 
 #: The states of a run folder, as :meth:`RunFolder.state` names them.
@@ -148,6 +149,40 @@ class RunFolder:
                     shutil.rmtree(path) if os.path.isdir(path) else os.unlink(path)
                     removed.append(name)
         return removed
+
+    def keep_scene(self, path: str) -> str:
+        """Copy the scene XML ``path`` and every file it names (its ``filename`` properties:
+        container meshes, textures) into :attr:`scene_copy`, the references rewritten to the
+        copies; return the copy's XML.
+
+        A run keeps such a copy and resumes from it (:meth:`scene_to_load`), so the scene file,
+        the container files beside it and the dataset holding them may all move after the run
+        started (``--resume --data MOVED``). A reference that Mitsuba resolves only when loading
+        (``$name``, a file on its search path) is kept as written; the integrator's ``dataset``
+        is made absolute.
+        """
+        base = os.path.dirname(os.path.abspath(path))
+        try:
+            tree = ET.parse(path)
+        except (OSError, ET.ParseError) as e:
+            raise ReneusError(f'{path}: cannot read the scene ({e})') from None
+        with atomic_folder(self.scene_copy) as work:
+            copies: dict[str, str] = {}
+            for element in tree.iter('string'):
+                name, value = element.get('name'), element.get('value', '')
+                if name not in ('filename', 'dataset') or '$' in value or not value:
+                    continue
+                source = os.path.abspath(os.path.join(base, value))
+                if name == 'dataset':
+                    element.set('value', source)
+                elif os.path.isfile(source):
+                    if source not in copies:
+                        copies[source] = f'{len(copies)}_{os.path.basename(source)}'
+                        shutil.copyfile(source, os.path.join(work, copies[source]))
+                    element.set('value', copies[source])
+            with open(os.path.join(work, 'scene.xml'), 'wb') as f:
+                tree.write(f, encoding='utf-8', xml_declaration=True)
+        return os.path.join(self.scene_copy, 'scene.xml')
 
     def scene_to_load(self, recorded: str) -> str:
         """The scene a continued run loads: its own copy (the run's scene as it started), else

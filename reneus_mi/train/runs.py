@@ -26,7 +26,7 @@ from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.surface import check_resolution
 from reneus_mi.io import check_npz_file
 from reneus_mi.presets import preset
-from reneus_mi.render.loading import check_field_reaches, copy_scene, load_scene, reneus_integrator
+from reneus_mi.render.loading import check_field_reaches, load_scene, reneus_integrator
 from reneus_mi.train.pixel_sampler import BYTES_PER_PIXEL
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.train.trainer import BUDGET_RANGE, Trainer, TrainingError, check_batch
@@ -105,7 +105,7 @@ class Run:
                 check_npz_file(folder.checkpoint, 'checkpoint')
             trainer = self.trainer()
             if not self.resume:
-                copy_scene(self.spec.scene, folder.scene_copy)
+                folder.keep_scene(self.spec.scene)
             folder.clear_result()
             folder.write_config(self.spec.to_dict())
             try:

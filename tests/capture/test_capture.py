@@ -72,7 +72,7 @@ def test_dataset_reads_back_in_millimetres(made, shot):
     np.testing.assert_allclose(ds.ambient, made['report']['light']['ambient'])
     # The container's projection is the mask; the block is 50x35x25 mm on the board.
     import trimesh
-    from reneus_mi.capture.container import pose_matrix
+    from reneus_mi.capture.placement import pose_matrix
     block = trimesh.load(ds.container)
     block.apply_transform(np.linalg.inv(pose_matrix(made['report']['container']['pose'])))
     # The PLY holds float32: 1e-5 mm at 150 mm from the origin.

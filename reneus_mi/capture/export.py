@@ -25,7 +25,7 @@ import numpy as np
 from reneus_mi.capture import overlay
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.calibrate import Calibration
-from reneus_mi.capture.container import board_mesh, local_mesh
+from reneus_mi.capture.placement import board_mesh, local_mesh
 from reneus_mi.capture.settings import CaptureSettings, to_json
 from reneus_mi.data.cameras import OPENGL_FROM_OPENCV
 from reneus_mi.data.images import write_image
