@@ -4,7 +4,8 @@
                             [--variants box nobox] [--configs fast:2,5,10 small:10]
                             [--runs runs/quality] [--doc docs] [--fresh | --remesh | --rewrite]
     python bench/quality.py --captures ant_small [beetle_large ...] [--capture-data /work/data/bcap]
-                            [--configs ...] [--runs ...] [--doc ...] [--fresh | --remesh | --rewrite]
+                            [--configs ...] [--set PATH=VALUE ...] [--runs ...] [--doc ...]
+                            [--fresh | --remesh | --rewrite]
 
 The data are the Blender Cycles set of ``bench/blender_set.py`` (``DATA/SCENE/box/``,
 ``nobox/``, the ground truth ``DATA/SCENE/gt.ply`` outside both). For each scene, variant
@@ -49,6 +50,11 @@ and the training PSNR's curve from ``RUN/log.jsonl``: its mean over 100 steps, t
 (and step) and its end, and the share of the run's steps during which it lay more than 1 dB
 below its best so far; ``DOC/quality/NAME_capture_PRESET_Mmin_psnr.png`` plots the PSNR per
 step and its mean. Their pictures look down on the board (its z points into the table).
+
+``--set PATH=VALUE`` (repeatable) passes a setting over the preset to the scene command: an
+ablation, a row of its own beside the preset's (its files and its key carry the settings), e.g.
+the model before the capture fixes, ``--set model.render.terminal=ambient --set
+model.render.board_texels=0``.
 """
 from __future__ import annotations
 
@@ -90,7 +96,7 @@ PSNR_WINDOW, PSNR_DROP = 100, 1.0
 #: Size of the PSNR plot, inches at 100 dpi.
 PLOT = (4.8, 2.4)
 #: What a row keeps in DOC/quality.json (the run folder is this machine's, not kept).
-RECORDED = ('scene', 'variant', 'preset', 'minutes', 'chamfer', 'chamfer_mm', 'fscore', 'threshold',
+RECORDED = ('scene', 'variant', 'preset', 'settings', 'minutes', 'chamfer', 'chamfer_mm', 'fscore', 'threshold',
             'postprocess', 'components', 'steps', 'train_s', 'psnr', 'psnr_best', 'psnr_best_step', 'psnr_end',
             'psnr_below_1db', 'photos', 'wall_s', 'others', 'status', 'reused', 'remeshed', 'picture',
             'psnr_plot', 'date', 'commit', 'machine')
@@ -112,8 +118,20 @@ def parse_configs(items) -> list[tuple[str, float]]:
     return out
 
 
-def _tag(preset: str, minutes: float) -> str:
-    return f'{preset}_{minutes:g}min'
+def _changed(settings: tuple[str, ...]) -> str:
+    """``--set`` settings in a file name: ``('model.render.terminal=ambient',)`` -> ``_terminal-ambient``."""
+    return ''.join(f"_{path.rpartition('.')[2]}-{value}" for path, _, value in (s.partition('=') for s in settings))
+
+
+def _tag(preset: str, minutes: float, settings: tuple[str, ...] = ()) -> str:
+    """A row's file name: ``fast_10min``, with settings ``fast_10min_terminal-ambient``."""
+    return f'{preset}_{minutes:g}min{_changed(settings)}'
+
+
+def _preset(row: dict) -> str:
+    """A row's preset as the document shows it, with the settings it changed."""
+    settings = row.get('settings') or ()
+    return row['preset'] + ''.join(f' `{s}`' for s in settings)
 
 
 def _run(cmd: list[str], log, timeout: float) -> str | None:
@@ -179,13 +197,15 @@ def count_components(mesh_path: str) -> int:
 
 def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str, minutes: float,
             fresh: bool, postprocess: str | None, remesh: bool = False, make_data: list[str] | None = None,
-            evaluate_args: tuple[str, ...] = ()) -> dict:
+            evaluate_args: tuple[str, ...] = (), settings: tuple[str, ...] = ()) -> dict:
     """One row: scene file, run, evaluation (or the reason there is none). ``make_data``: the
     command that writes the dataset ``data`` (a capture's), run first where ``data`` holds no
-    ``transforms.json``; ``evaluate_args``: more options of evaluate's."""
-    row = {'scene': scene, 'variant': variant, 'preset': preset, 'minutes': minutes}
+    ``transforms.json``; ``evaluate_args``: more options of evaluate's; ``settings``: the scene
+    command's ``--set PATH=VALUE`` over the preset (an ablation)."""
+    row = {'scene': scene, 'variant': variant, 'preset': preset, 'minutes': minutes, 'settings': list(settings)}
     folder = os.path.join(runs, scene, variant)
-    run = os.path.join(folder, _tag(preset, minutes))
+    tag = _tag(preset, minutes, settings)
+    run = os.path.join(folder, tag)
     evaluation = os.path.join(run, 'evaluate.json')
     row['run'] = run
     made = os.path.isfile(os.path.join(data, 'transforms.json'))
@@ -194,14 +214,14 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
     if not os.path.isfile(gt):
         return {**row, 'status': f'skipped: no ground truth at {gt}'}
     if os.path.isfile(evaluation) and not fresh:
-        machine = os.path.join(folder, f'{_tag(preset, minutes)}.machine.json')
+        machine = os.path.join(folder, f'{tag}.machine.json')
         if os.path.isfile(machine):
             with open(machine) as f:
                 row.update(json.load(f))
         if remesh:
             with open(os.path.join(run, 'config.json')) as f:
                 resolution = json.load(f)['train']['mesh_resolution']
-            with open(os.path.join(folder, f'{_tag(preset, minutes)}.log'), 'a') as log:
+            with open(os.path.join(folder, f'{tag}.log'), 'a') as log:
                 for cmd in ([sys.executable, '-m', 'reneus_mi.extract', os.path.join(run, 'checkpoint.npz'), '-o',
                              os.path.join(run, 'mesh.ply'), '--resolution', str(resolution), '--overwrite'],
                             _evaluate(run, gt, evaluation, postprocess, evaluate_args)):
@@ -214,10 +234,11 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
         # A run of this benchmark that did not finish (or --fresh): its folder is ours.
         shutil.rmtree(run)
     os.makedirs(folder, exist_ok=True)
-    xml = os.path.join(folder, f'scene_{preset}.xml')
+    xml = os.path.join(folder, f'scene_{preset}{_changed(settings)}.xml')
     py = sys.executable
-    with open(os.path.join(folder, f'{_tag(preset, minutes)}.log'), 'w') as log:
-        steps = [[py, '-m', 'reneus_mi.scene', data, '-o', xml, '--preset', preset, '--overwrite'],
+    with open(os.path.join(folder, f'{tag}.log'), 'w') as log:
+        steps = [[py, '-m', 'reneus_mi.scene', data, '-o', xml, '--preset', preset, '--overwrite',
+                  *(a for s in settings for a in ('--set', s))],
                  [py, '-m', 'reneus_mi.optimize', xml, '-o', run, '--max-minutes', f'{minutes:g}', '--quiet'],
                  _evaluate(run, gt, evaluation, postprocess, evaluate_args)]
         timeouts = [GRACE_S, 60 * minutes + GRACE_S, GRACE_S]
@@ -238,7 +259,7 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
             # cannot tell the benchmark's own runs from others'.
             others = busy_seconds() - busy - (children_seconds() - own)
             row['others'] = max(0.0, others / (row['wall_s'] * (os.cpu_count() or 1)))
-    with open(os.path.join(folder, f'{_tag(preset, minutes)}.machine.json'), 'w') as f:
+    with open(os.path.join(folder, f'{tag}.machine.json'), 'w') as f:
         json.dump({k: row[k] for k in ('wall_s', 'others') if k in row}, f)
     if 'status' in row:
         return {**row, **_read(run, None)}
@@ -412,7 +433,7 @@ def picture(mesh_path: str, gt_path: str, out: str, up: float = 1.0) -> None:
 # --- the record -----------------------------------------------------------------------------
 
 def _key(row: dict) -> tuple:
-    return row['scene'], row['variant'], row['preset'], float(row['minutes'])
+    return row['scene'], row['variant'], row['preset'], float(row['minutes']), tuple(row.get('settings') or ())
 
 
 def read_record(doc: str) -> list[dict]:
@@ -432,7 +453,7 @@ def merge(earlier: list[dict], rows: list[dict], scenes: list[str]) -> list[dict
     order = {s: i for i, s in enumerate(dict.fromkeys(scenes + [r['scene'] for r in merged]))}
     variants = {'box': 0, 'nobox': 1}
     return sorted(merged, key=lambda r: (order[r['scene']], variants.get(r['variant'], 2), r['variant'],
-                                         r['preset'], float(r['minutes'])))
+                                         r['preset'], float(r['minutes']), tuple(r.get('settings') or ())))
 
 
 def write_record(rows: list[dict], doc: str) -> None:
@@ -531,7 +552,7 @@ def _set_lines(rows: list[dict], ran) -> list[str]:
                   'PSNR | others | status | ran | picture |',
                   '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
         for r in (r for r in rows if r['scene'] == scene):
-            lines.append(f"| {r['variant']} | {r['preset']} | {r['minutes']:g} min | "
+            lines.append(f"| {r['variant']} | {_preset(r)} | {r['minutes']:g} min | "
                          f"{_fmt(r.get('chamfer'), '.3f')} | {_fmt(r.get('components'), 'd')} | "
                          f"{_fmt(r.get('steps'), 'd')} | {_fmt(r.get('psnr'), '.2f')} | "
                          f"{_fmt(r.get('others'), '.0%')} | {_status(r)} | {ran(r)} | {_link(r, 'picture')} |")
@@ -572,7 +593,7 @@ def _capture_lines(rows: list[dict], ran) -> list[str]:
              '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
     for r in rows:
         best = (f"{r['psnr_best']:.2f} ({r['psnr_best_step']})" if r.get('psnr_best') is not None else '')
-        lines.append(f"| {r['scene']} | {r.get('photos', '')} | {r['preset']} | {r['minutes']:g} min | "
+        lines.append(f"| {r['scene']} | {r.get('photos', '')} | {_preset(r)} | {r['minutes']:g} min | "
                      f"{_fmt(r.get('chamfer_mm'), '.3f')} | {_fmt(r.get('fscore'), '.3f')} | "
                      f"{_fmt(r.get('components'), 'd')} | {_fmt(r.get('steps'), 'd')} | {best} | "
                      f"{_fmt(r.get('psnr_end'), '.2f')} | {_fmt(r.get('psnr_below_1db'), '.0%')} | "
@@ -587,6 +608,7 @@ def criterion(rows: list[dict]) -> list[dict]:
     out = []
     for scene in dict.fromkeys(r['scene'] for r in rows):
         got = {r['variant']: r for r in rows if r['scene'] == scene and r['preset'] == c['preset']
+               and not r.get('settings')
                and r['minutes'] == c['minutes'] and r.get('chamfer') is not None}
         if 'box' in got and 'nobox' in got:
             box, nobox = got['box'], got['nobox']
@@ -633,7 +655,7 @@ def figures(row: dict, gt: str, pictures: str, doc: str) -> dict:
     """What a row adds to its run's numbers: its picture and, a capture row, its millimetres,
     the size of its photographs and its PSNR curve with its plot."""
     out = {}
-    stem = os.path.join(pictures, f"{row['scene']}_{row['variant']}_{_tag(row['preset'], row['minutes'])}")
+    stem = os.path.join(pictures, f"{row['scene']}_{row['variant']}_{_tag(row['preset'], row['minutes'], tuple(row.get('settings') or ()))}")
     capture = row['variant'] == CAPTURE
     mesh = os.path.join(row['run'], 'mesh.ply')
     if os.path.isfile(mesh):
@@ -664,6 +686,10 @@ def main(argv=None) -> None:
                         help='folder of the captures, NAME/photos and NAME/truth (default: %(default)s)')
     parser.add_argument('--configs', nargs='+', default=list(CONFIGS),
                         help='PRESET:MINUTES[,MINUTES...] (default: %(default)s)')
+    parser.add_argument('--set', dest='settings', action='append', default=[], metavar='PATH=VALUE',
+                        help="a setting over every preset, passed to the scene command's --set (repeatable): "
+                             'ablation rows, kept apart from the preset\'s own, e.g. '
+                             'model.render.terminal=ambient')
     parser.add_argument('--runs', default=os.path.join(ROOT, 'runs', 'quality'),
                         help='folder of the runs (default: runs/quality)')
     parser.add_argument('--doc', default=os.path.join(ROOT, 'docs'),
@@ -700,12 +726,12 @@ def main(argv=None) -> None:
         for preset, minutes in configs:
             row = run_one(job['data'], job['gt'], args.runs, job['scene'], job['variant'], preset, minutes,
                           args.fresh, args.postprocess, args.remesh, job.get('make_data'),
-                          job.get('evaluate_args', ()))
+                          job.get('evaluate_args', ()), tuple(args.settings))
             row.update(figures(row, job['gt'], pictures, args.doc))
             rows.append({**row, **stamp})
             chamfer = (f"Chamfer-L1 {_fmt(row.get('chamfer_mm'), '.3f') or '-'} mm" if row['variant'] == CAPTURE
                        else f"Chamfer {_fmt(row.get('chamfer'), '.3f') or '-'}")
-            print(f"{row['scene']} {row['variant']} {preset} {minutes:g} min: {row['status']}, {chamfer}, "
+            print(f"{row['scene']} {row['variant']} {_preset(row)} {minutes:g} min: {row['status']}, {chamfer}, "
                   f"components {_fmt(row.get('components'), 'd') or '-'}", flush=True)
             merged = merge(earlier, rows, scenes)
             write_record(merged, args.doc)
