@@ -26,7 +26,7 @@ def run_name(depth: int) -> str:
 
 def ablation(obj: str, depths, cfg: dict, out: str, doc_dir: str, progress: bool = False) -> dict:
     from reneus_mi.config import to_dict
-    from reneus_mi.io import atomic_write_text
+    from reneus_mi.utils.io import atomic_write_text
     results = {d: compare.run_method(obj, 'reneus', out, cfg, model_extra={'render.max_depth': int(d)},
                                      run_name=run_name(d), progress=progress) for d in depths}
     t = to_dict(compare.reconstruction_config(cfg, trans_weight=0.1).train)
@@ -66,7 +66,7 @@ def main(argv=None) -> int:
         p.error('--depths: D_re >= 1')
     cfg = compare.resolve(args.config, args.iterations)
     out = args.out or os.path.join('runs', f'compare_{args.config}')
-    from reneus_mi.errors import exit_on_error
+    from reneus_mi.utils.errors import exit_on_error
     with exit_on_error():
         ablation(args.object, args.depths, cfg, out, args.doc, args.progress)
     print(f"wrote {os.path.join(args.doc, 'ablation_depth.md')}")

@@ -28,7 +28,7 @@ import reneus_mi  # noqa: F401
 from reneus_mi.batch import engines
 from reneus_mi.batch.collection import read_collection
 from reneus_mi.batch.runner import run_batch
-from reneus_mi.io import write_section
+from reneus_mi.utils.io import write_section
 
 #: Load average above which the figures are marked as from a loaded machine.
 LOADED = 1.5

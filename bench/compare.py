@@ -136,7 +136,7 @@ def run_method(obj: str, key: str, out: str, cfg: dict, *, model_extra: dict | N
     from reneus_mi.geometry.container import load_container
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh, write_mesh
-    from reneus_mi.io import atomic_write_text
+    from reneus_mi.utils.io import atomic_write_text
     from reneus_mi.geometry.surface import postprocess
     from reneus_mi.data.scene_xml import write_scene
 
@@ -337,7 +337,7 @@ def compare(objects, cfg: dict, out: str, doc_dir: str, *, progress: bool = Fals
     md = table(results, list(objects), cfg, elapsed=time.perf_counter() - start)
     if note:
         md = md.replace('## Who wins', note + '\n\n## Who wins', 1)
-    from reneus_mi.io import write_section
+    from reneus_mi.utils.io import write_section
     write_figure(results, list(objects), os.path.join(doc_dir, 'comparison.png'), out)
     # bench/refine.py writes its own section of the same document.
     write_section(os.path.join(doc_dir, 'comparison.md'), 'compare', md)
@@ -356,7 +356,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     cfg = resolve(args.config, args.iterations)
     out = args.out or os.path.join('runs', f'compare_{args.config}')
-    from reneus_mi.errors import exit_on_error
+    from reneus_mi.utils.errors import exit_on_error
     with exit_on_error():
         compare(args.objects, cfg, out, args.doc, progress=args.progress)
     print(f"wrote {os.path.join(args.doc, 'comparison.md')} and comparison.png")

@@ -186,7 +186,7 @@ def children_seconds() -> float:
 
 def count_components(mesh_path: str) -> int:
     """Connected pieces of the run's mesh as it wrote it (0 when it holds no surface)."""
-    from reneus_mi.errors import ReneusError
+    from reneus_mi.utils.errors import ReneusError
     from reneus_mi.geometry.mesh import load_mesh
     from reneus_mi.geometry.surface import components
     try:
@@ -387,7 +387,7 @@ def picture(mesh_path: str, gt_path: str, out: str, up: float = 1.0) -> None:
     frames the ground truth, above it and lit from above. ``up``: the sign of z that points up
     (-1 in a capture's board frame, whose z points into the table)."""
     import mitsuba as mi
-    from reneus_mi.errors import ReneusError
+    from reneus_mi.utils.errors import ReneusError
     from reneus_mi.geometry.mesh import load_mesh
     if mi.variant() is None:
         mi.set_variant('scalar_rgb')
@@ -457,7 +457,7 @@ def merge(earlier: list[dict], rows: list[dict], scenes: list[str]) -> list[dict
 
 
 def write_record(rows: list[dict], doc: str) -> None:
-    from reneus_mi.io import atomic_open
+    from reneus_mi.utils.io import atomic_open
     with atomic_open(os.path.join(doc, 'quality.json'), 'w') as f:
         json.dump({'rows': [{k: r[k] for k in RECORDED if r.get(k) is not None} for r in rows]}, f, indent=1)
 
@@ -528,7 +528,7 @@ def write_doc(rows: list[dict], doc: str, command: str, started: dict, minutes: 
     if captures:
         lines += _capture_lines(captures, ran)
     os.makedirs(doc, exist_ok=True)
-    from reneus_mi.io import atomic_open
+    from reneus_mi.utils.io import atomic_open
     path = os.path.join(doc, 'quality.md')
     with atomic_open(path, 'w') as f:
         f.write('\n'.join(lines))

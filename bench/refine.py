@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     import mitsuba as mi
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh
-    from reneus_mi.io import write_section
+    from reneus_mi.utils.io import write_section
     from reneus_mi.train.runs import run_many
     from reneus_mi.data.synth import make_dataset
     out = os.path.abspath(args.out)

@@ -8,7 +8,6 @@ import drjit as dr
 import mitsuba as mi
 
 from reneus_mi.config import ModelConfig
-from reneus_mi.errors import ReneusError
 from reneus_mi.fields import Field
 from reneus_mi.geometry.container import interpolated_normal
 from reneus_mi.render.frame import FieldFrame
@@ -18,6 +17,7 @@ from reneus_mi.render.seeds import opaque_seed
 from reneus_mi.render.step_state import StepState
 from reneus_mi.render.surroundings import Surroundings, scene_parts, shapes_bbox, surroundings_of
 from reneus_mi.render.volume_rendering import volume_render
+from reneus_mi.utils.errors import ReneusError
 
 VARIANT = mi.variant()
 #: Interfaces that ``terminal='trace'`` follows beyond the ray tree: a box's internal

@@ -25,12 +25,12 @@ import os
 import typing
 from dataclasses import dataclass
 
-from reneus_mi.geometry.container import CREASE_ANGLE
-from reneus_mi.errors import ReneusError, check_choice, check_numbers
-from reneus_mi.geometry.surface import POSTPROCESS_MODES
 from reneus_mi.fields import FIELD_CONFIGS, FieldConfig, NeuSFieldConfig
+from reneus_mi.geometry.container import CREASE_ANGLE
+from reneus_mi.geometry.surface import POSTPROCESS_MODES
 from reneus_mi.render.ray_samplers import SamplerConfig
 from reneus_mi.render.surroundings import LIGHTS
+from reneus_mi.utils.errors import ReneusError, check_choice, check_numbers
 
 MODES = ('reneus', 'neus', 'neus_plus')
 TERMINALS = ('trace', 'ambient', 'black')

@@ -13,13 +13,13 @@ import argparse
 import json
 import sys
 
-from reneus_mi import guards
-from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.container import load_container
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.geometry.surface import POSTPROCESS_MODES, components, postprocess
-from reneus_mi.io import atomic_write_text
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError, exit_on_error
+from reneus_mi.utils.io import atomic_write_text
 
 
 def _table(result: dict) -> str:

@@ -11,13 +11,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from reneus_mi import guards
-from reneus_mi.errors import exit_on_error
 from reneus_mi.fields import load_field
 from reneus_mi.geometry.mesh import MESH_EXTENSIONS, write_mesh
 from reneus_mi.geometry.surface import POSTPROCESS_MODES, check_resolution, components, field_mesh
-from reneus_mi.io import check_npz_file
 from reneus_mi.train import checkpoint
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import exit_on_error
+from reneus_mi.utils.io import check_npz_file
 
 
 def main(argv=None) -> int:

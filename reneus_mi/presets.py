@@ -25,9 +25,9 @@ from __future__ import annotations
 import copy
 
 from reneus_mi.config import ModelConfig, ReconstructionConfig, TrainConfig
-from reneus_mi.errors import ReneusError
 from reneus_mi.fields import HashGridFieldConfig, NeuSFieldConfig
 from reneus_mi.render.ray_samplers import SamplerConfig
+from reneus_mi.utils.errors import ReneusError
 
 #: NeuS's field at CPU size (the small and the cpu preset's architecture differ in width only).
 _SMALL_NEUS = dict(layers=4, color_layers=2, multires=4, multires_view=2, init_radius=0.3)

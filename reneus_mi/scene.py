@@ -14,13 +14,13 @@ import argparse
 import sys
 import warnings
 
-from reneus_mi import guards
 from reneus_mi.config import with_settings
 from reneus_mi.data import load_dataset
 from reneus_mi.data.scene_xml import write_scene
-from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.presets import preset
 from reneus_mi.render.properties import xml_properties
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError, exit_on_error
 
 
 def _literal(text: str) -> bool | int | float | str:

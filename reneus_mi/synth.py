@@ -11,8 +11,8 @@ import sys
 
 from reneus_mi.data.objects import CONTAINERS, OBJECTS
 from reneus_mi.data.synth import DEFAULT_MAX_DEPTH, DEFAULT_SPP, AMBIENT, IOR, SUBSETS, make_dataset
-from reneus_mi import interrupt
-from reneus_mi.errors import exit_on_error
+from reneus_mi.utils import interrupt
+from reneus_mi.utils.errors import exit_on_error
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,7 +1,7 @@
 """Errors end a command with one line naming the thing, never a traceback."""
 import pytest
 
-from reneus_mi.errors import ReneusError, exit_on_error, user_message
+from reneus_mi.utils.errors import ReneusError, exit_on_error, user_message
 
 
 def test_exit_on_error_is_one_line():

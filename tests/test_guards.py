@@ -5,8 +5,8 @@ import os
 
 import pytest
 
-from reneus_mi import guards
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError
 
 
 def dataset_folder(path):

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import check_npz_file
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import check_npz_file
 
 
 def test_npz_file(tmp_path):
@@ -24,7 +24,7 @@ def test_written_files_are_readable_by_the_group(tmp_path):
     0600 would shut a team sharing the drive out)."""
     import os
     import trimesh
-    from reneus_mi.io import atomic_export, atomic_savez, atomic_write_text
+    from reneus_mi.utils.io import atomic_export, atomic_savez, atomic_write_text
     old = os.umask(0o022)
     try:
         atomic_write_text(tmp_path / 'a.json', '{}')

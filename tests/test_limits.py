@@ -1,8 +1,8 @@
 """Sizes beyond the machine's memory or Dr.Jit's 32-bit indices are refused up front."""
 import pytest
 
-from reneus_mi import limits
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils import limits
+from reneus_mi.utils.errors import ReneusError
 
 
 def test_memory_and_indices():

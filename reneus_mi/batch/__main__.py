@@ -15,16 +15,20 @@ import argparse
 import functools
 import sys
 import warnings
-from typing import TYPE_CHECKING
 
-from reneus_mi.errors import exit_on_error
-
-if TYPE_CHECKING:
-    from reneus_mi.train.run_folder import RunState
+from reneus_mi.batch import engines, worker
+from reneus_mi.batch.collection import read_collection
+from reneus_mi.batch.engines import DEVICES, ENGINES
+from reneus_mi.batch.folder import BatchFolder
+from reneus_mi.batch.runner import run_batch
+from reneus_mi.train.run_folder import RunState
+from reneus_mi.utils.errors import exit_on_error
 
 
 def main(argv=None) -> int:
-    from reneus_mi.batch.engines import DEVICES, ENGINES
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == [worker.TASK_OPTION] and len(argv) == 2:
+        return worker.work(argv[1])
     parser = argparse.ArgumentParser(prog='python -m reneus_mi.batch', description=__doc__.split('\n\n')[0],
                                      epilog=__doc__.split('\n\n', 1)[1])
     parser.add_argument('collection', metavar='COLLECTION', help='folder of dataset or capture folders, or a '
@@ -68,10 +72,6 @@ def main(argv=None) -> int:
 
 
 def run(args) -> dict[str, RunState]:
-    from reneus_mi.batch import engines
-    from reneus_mi.batch.collection import read_collection
-    from reneus_mi.batch.folder import BatchFolder
-    from reneus_mi.batch.runner import run_batch
     engines.check_options(args.engine, device=args.device, workers=args.workers, threads=args.threads,
                           cpus=args.cpus_per_run, minutes=args.time, max_parallel=args.max_parallel)
     with warnings.catch_warnings():

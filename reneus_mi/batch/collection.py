@@ -36,8 +36,8 @@ import re
 import warnings
 from dataclasses import dataclass, field
 
-from reneus_mi import guards
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError
 
 #: What a specimen's data folder is: a dataset, or photographs to capture a dataset from.
 KINDS = ('dataset', 'capture')

@@ -34,8 +34,9 @@ import sys
 import time
 from dataclasses import dataclass
 
-from reneus_mi import interrupt
-from reneus_mi.errors import ReneusError
+from reneus_mi.batch.worker import EXIT_BUSY, TASK_OPTION, run_task
+from reneus_mi.utils import interrupt
+from reneus_mi.utils.errors import ReneusError
 
 ENGINES = ('local', 'ray', 'slurm')
 DEVICES = ('auto', 'cpu', 'gpu')
@@ -147,7 +148,7 @@ class Engine:
 
 
 class LocalPool(Engine):
-    """Worker processes on this machine (``python -m reneus_mi.batch.worker``), ``workers`` at
+    """Worker processes on this machine (``python -m reneus_mi.batch --task TASK_JSON``), ``workers`` at
     a time, each with ``threads`` Dr.Jit threads or one of ``gpus``. A process per run: a
     run's memory goes back when it ends, and a crash takes one specimen down, not the pool.
     The workers run in sessions of their own, so that a terminal's Ctrl-C reaches the batch
@@ -172,13 +173,12 @@ class LocalPool(Engine):
             files = self.files_of(task['specimen']['name'])
             os.makedirs(files.path, exist_ok=True)
             with open(files.worker_log, 'ab') as log:
-                proc = subprocess.Popen([sys.executable, '-m', 'reneus_mi.batch.worker', json.dumps(task)],
+                proc = subprocess.Popen([sys.executable, '-m', 'reneus_mi.batch', TASK_OPTION, json.dumps(task)],
                                         stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env,
                                         start_new_session=True)
             self.slots[slot] = (proc, task, time.perf_counter())
 
     def wait(self, timeout: float) -> list[tuple[dict, dict]]:
-        from reneus_mi.batch.worker import EXIT_BUSY
         deadline = time.monotonic() + timeout
         while True:
             ended = []
@@ -238,7 +238,6 @@ class RayEngine(Engine):
             import ray
         except ImportError:
             raise ReneusError("--engine ray needs Ray: pip install 'reneus-mi[ray]'") from None
-        from reneus_mi.batch.worker import run_task
         self.ray, self.refs = ray, {}
         self.started = not ray.is_initialized()
         if self.started:
@@ -347,7 +346,6 @@ class SlurmEngine(Engine):
         return 1 << 30
 
     def submit(self, tasks: list[dict]) -> None:
-        from reneus_mi.batch.worker import run_task
         if tasks:
             for job, task in zip(self.executor.map_array(run_task, tasks), tasks):
                 self.jobs[job] = (task, time.perf_counter())
@@ -428,7 +426,7 @@ def make_engine(name: str, configs, files_of, *, tasks: int, device: str = 'auto
         res = resources(configs, gpu=device == 'gpu', cpus=cpus or CORES_PER_RUN, minutes=minutes)
         return SlurmEngine(res, slurm_folder, partition=partition, max_parallel=max_parallel,
                            cluster=slurm_cluster)
-    from reneus_mi.limits import MEMORY_FRACTION, physical_memory
+    from reneus_mi.utils.limits import MEMORY_FRACTION, physical_memory
     cores = cpu_count()
     gpus = local_gpus() if device in ('auto', 'gpu') else []
     if device == 'gpu' and not gpus:

@@ -26,13 +26,14 @@ import os
 import time
 from typing import Callable
 
-from reneus_mi import guards, interrupt
 from reneus_mi.batch import summary
 from reneus_mi.batch.collection import Specimen
 from reneus_mi.batch.folder import RESERVED, BatchFolder
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_write_text
+from reneus_mi.batch.worker import record_death
 from reneus_mi.train.run_folder import RunState
+from reneus_mi.utils import guards, interrupt
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_write_text
 
 #: Seconds between progress lines while nothing ends.
 HEARTBEAT = 60.0
@@ -138,7 +139,6 @@ def _drive(batch, specimens, make_engine, redo, say) -> dict[str, str]:
 
 def _settle(batch, name: str, outcome: dict, engine: str):
     """The run's state once its task ended: a dead worker's run is recorded failed."""
-    from reneus_mi.batch.worker import record_death
     folder = batch.run(name)
     if outcome.get('outcome') == 'died':
         log = folder.read_log() if os.path.isfile(folder.log) else []

@@ -29,7 +29,7 @@ import math
 import os
 import time
 
-from reneus_mi.io import atomic_write_text
+from reneus_mi.utils.io import atomic_write_text
 
 COLUMNS = ('name', 'state', 'reason', 'wall_s', 'iterations', 'psnr', 'chamfer', 'ior', 'translation',
            'rotation', 'scale', 'light', 'mesh', 'container', 'preview', 'data')

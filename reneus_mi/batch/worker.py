@@ -22,12 +22,13 @@ from __future__ import annotations
 import json
 import os
 import socket
-import sys
 import time
 import traceback
 
 #: The local worker's exit status when the run is held by another process.
 EXIT_BUSY = 75
+#: The batch command's option that makes its process a worker of the local pool.
+TASK_OPTION = '--task'
 
 
 def run_task(task: dict) -> dict:
@@ -37,8 +38,8 @@ def run_task(task: dict) -> dict:
     import drjit as dr
     from reneus_mi.batch.collection import Specimen
     from reneus_mi.batch.folder import BatchFolder
-    from reneus_mi.errors import ReneusError
-    from reneus_mi.variant import set_variant
+    from reneus_mi.utils.errors import ReneusError
+    from reneus_mi.utils.variant import set_variant
     set_variant(task['variant'])
     if task.get('threads'):
         dr.set_thread_count(int(task['threads']))
@@ -64,7 +65,7 @@ def run_task(task: dict) -> dict:
 
 
 def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
-    from reneus_mi.errors import ReneusError, one_line, user_message
+    from reneus_mi.utils.errors import ReneusError, one_line, user_message
     result = folder.read_result()
     if result is not None and 'failure' not in result and not redo:
         return 'skipped', 'finished before'
@@ -98,7 +99,7 @@ def prepare(specimen, files, folder):
     from reneus_mi.capture import pipeline, settings as capture_settings
     from reneus_mi.data import load_dataset
     from reneus_mi.data.scene_xml import write_scene
-    from reneus_mi.errors import ReneusError
+    from reneus_mi.utils.errors import ReneusError
     from reneus_mi.train import runs
     os.makedirs(files.path, exist_ok=True)
     data = specimen.data
@@ -123,7 +124,7 @@ def measure(ds, mesh_path: str, files) -> dict:
     import trimesh
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh
-    from reneus_mi.io import atomic_write_text
+    from reneus_mi.utils.io import atomic_write_text
     from reneus_mi.render.preview import render_preview
     metrics = {}
     mesh = trimesh.load(mesh_path, process=False, force='mesh')
@@ -141,7 +142,7 @@ def measure(ds, mesh_path: str, files) -> dict:
 def record_death(folder, files, reason: str, seconds: float | None, engine: str) -> bool:
     """Record that the worker of ``folder``'s run died (``reason``), unless another process
     drives the run by now; returns whether it was recorded."""
-    from reneus_mi.errors import ReneusError
+    from reneus_mi.utils.errors import ReneusError
     lock = folder.lock()
     try:
         lock.acquire()
@@ -186,18 +187,14 @@ def _clear(folder) -> None:
     folder.remove_stray_temporaries()
 
 
-def main(argv=None) -> int:
-    """The local pool's worker process: ``python -m reneus_mi.batch.worker TASK_JSON``."""
-    from reneus_mi.errors import exit_on_error
-    argv = sys.argv[1:] if argv is None else argv
+def work(task_json: str) -> int:
+    """A worker process of the local pool (``python -m reneus_mi.batch`` with
+    :data:`TASK_OPTION`): run the task, print its outcome as JSON; the exit status says busy."""
+    from reneus_mi.utils.errors import exit_on_error
     # A run stopped by Ctrl-C with steps to keep writes its checkpoint and raises
     # KeyboardInterrupt: the worker ends with the interrupt's status, which the pool reads as
     # interrupted (resumable), not as a worker killed by the signal.
     with exit_on_error():
-        outcome = run_task(json.loads(argv[0]))
+        outcome = run_task(json.loads(task_json))
     print(json.dumps(outcome), flush=True)
     return EXIT_BUSY if outcome['outcome'] == 'busy' else 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())

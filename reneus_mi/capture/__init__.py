@@ -6,7 +6,7 @@ pose (:mod:`~reneus_mi.capture.calibrate`); the container of measured size is fo
 on it (:mod:`~reneus_mi.capture.register`); the photographs are undistorted to pinhole
 cameras (:mod:`~reneus_mi.data.undistort`), their exposures normalised and the ambient
 light measured (:mod:`~reneus_mi.capture.exposure`). Everything is in the board's frame, in
-millimetres. ``python -m reneus_mi.capture PHOTOS -o DATASET`` (:mod:`~reneus_mi.capture.command`);
+millimetres. ``python -m reneus_mi.capture PHOTOS -o DATASET`` (:mod:`reneus_mi.capture.__main__`);
 :mod:`~reneus_mi.capture.simulate` renders captures to test it; :mod:`~reneus_mi.capture.colmap`
 reads poses from a COLMAP model instead.
 """

@@ -1,5 +1,61 @@
+"""``python -m reneus_mi.capture PHOTOS -o DATASET``: from a folder of photographs to a dataset
+(the pipeline: :mod:`~reneus_mi.capture.pipeline`)."""
+from __future__ import annotations
+
+import argparse
+import os
 import sys
+import warnings
 
-from reneus_mi.capture.command import main
+import cv2
 
-sys.exit(main())
+from reneus_mi.capture import export, settings as settings_mod
+from reneus_mi.capture.pipeline import run
+from reneus_mi.utils import guards, interrupt
+from reneus_mi.utils.errors import exit_on_error
+
+
+def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f'warning: {message}', file=sys.stderr)
+
+
+def _left(out: str) -> str:
+    """What an interrupted capture leaves in ``out``."""
+    if guards.is_dataset_dir(out):
+        return f'{out} holds the whole dataset (its transforms.json is written last)'
+    if os.path.isdir(out):
+        return f'{out} holds no dataset yet (no transforms.json): the same command replaces what it holds'
+    return 'nothing was written'
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(
+        prog='python -m reneus_mi.capture',
+        description='From photographs of a container standing on a printed ChArUco board to a '
+                    'reneus-mi dataset: calibration, undistortion, the container found, exposure '
+                    'and light measured. Coordinates: the board\'s frame (OpenCV ChArUco: origin at '
+                    'the board\'s outer corner, x along the columns, y along the rows, z into the '
+                    'table), millimetres.')
+    parser.add_argument('photos', metavar='PHOTOS_DIR', help='folder of photographs (JPEG, PNG, TIFF)')
+    parser.add_argument('-o', '--output', required=True, metavar='DATASET_DIR', help='dataset folder to write (new or empty)')
+    parser.add_argument('--settings', metavar='FILE', help=f'capture settings file (default: PHOTOS_DIR/{settings_mod.CAPTURE_FILE} if present)')
+    parser.add_argument('--quiet', action='store_true', help='print no table')
+    settings_mod.add_arguments(parser)
+    args = parser.parse_args(argv)
+    interrupt.leaving(lambda: _left(args.output))
+    with exit_on_error(RuntimeError, cv2.error):
+        with warnings.catch_warnings():
+            warnings.simplefilter('always')
+            warnings.showwarning = _one_line
+            s = settings_mod.resolve(args, args.photos, args.settings)
+            report = run(s, args.photos, args.output)
+    if not args.quiet:
+        print(export.table(report))
+    print(f"wrote {args.output}: {len(report['views'])} views, container at x={report['container']['pose'][0]:.2f} mm, "
+          f"y={report['container']['pose'][1]:.2f} mm, yaw={report['container']['pose'][2]:.2f} deg "
+          f"(residual {report['container']['residual_px']:.2f} px), {report['seconds']:.0f} s")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -15,9 +15,11 @@ import functools
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from reneus_mi.capture.settings import CaptureSettings
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_path
 
 #: OpenCV's predefined ArUco dictionaries, by name.
 DICTIONARIES = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco)
@@ -186,12 +188,9 @@ def other_dictionary(gray: np.ndarray, board: Board) -> str | None:
     return best if found >= 4 else None
 
 
-
 def write_print(board: Board, path: str, dpi: float = 600.0) -> tuple[int, int]:
     """The board as a file to print at 100 % (a white margin of up to 10 mm, the density in
     the PNG so that printers keep the size); returns its size in pixels."""
-    from PIL import Image
-    from reneus_mi.io import atomic_path
     px_per_mm = dpi / 25.4
     pattern = board.pattern(px_per_mm)
     margin = int(round(min(board.square_mm, 10.0) * px_per_mm))
@@ -199,35 +198,3 @@ def write_print(board: Board, path: str, dpi: float = 600.0) -> tuple[int, int]:
     with atomic_path(path) as tmp:
         Image.fromarray(sheet).save(tmp, format='PNG', dpi=(dpi, dpi))
     return sheet.shape[1], sheet.shape[0]
-
-
-def main(argv=None) -> int:
-    import argparse
-    from reneus_mi import guards
-    from reneus_mi.capture.settings import CaptureSettings, numbers
-    from reneus_mi.errors import exit_on_error
-    parser = argparse.ArgumentParser(prog='python -m reneus_mi.capture.board',
-                                     description='Write a ChArUco board to print at 100 % (docs/capture.md).')
-    parser.add_argument('-o', '--output', required=True, help='PNG file to write')
-    parser.add_argument('--squares', default='12x9', help='squares along the columns and rows (default: 12x9)')
-    parser.add_argument('--square-mm', type=float, default=20.0, help='side of a square in mm (default: 20)')
-    parser.add_argument('--marker-mm', type=float, default=15.0, help='side of a marker in mm (default: 15)')
-    parser.add_argument('--dictionary', default='DICT_4X4_100', help='ArUco dictionary (default: DICT_4X4_100)')
-    parser.add_argument('--dpi', type=float, default=600.0, help='printer resolution (default: 600)')
-    args = parser.parse_args(argv)
-    with exit_on_error():
-        squares = numbers(args.squares, 2, int, 'x', 'squares', '--squares')
-        CaptureSettings(squares=squares, square_mm=args.square_mm, marker_mm=args.marker_mm,
-                        size_mm=(1.0, 1.0, 1.0), ior=1.5).check('board')
-        board = Board(*squares, args.square_mm, args.marker_mm, args.dictionary)
-        board.check()
-        guards.check_output_file(args.output, extensions=('.png',))
-        w, h = write_print(board, args.output, args.dpi)
-    print(f'wrote {args.output}: {w}x{h} pixels at {args.dpi:g} dpi = {w / args.dpi * 25.4:.1f} x '
-          f'{h / args.dpi * 25.4:.1f} mm; print at 100 % and measure a square')
-    return 0
-
-
-if __name__ == '__main__':
-    import sys
-    sys.exit(main())

@@ -25,7 +25,7 @@ import numpy as np
 
 from reneus_mi.capture.board import MIN_CORNERS, Board, Detection
 from reneus_mi.data.undistort import opencv_K
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 #: A corner is an outlier beyond this many robust standard deviations (1.4826 MAD) ...
 OUTLIER_SIGMAS = 3.0

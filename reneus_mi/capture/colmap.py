@@ -9,28 +9,26 @@ SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV without its rational terms) are undis
 is reneus-mi's (the top-left pixel's centre at (0.5, 0.5)) and its cameras have OpenCV's
 axes, so poses are taken as they are: ``c2w = cam_from_world⁻¹``.
 
-Command line::
+The command (:mod:`reneus_mi.colmap`)::
 
-    python -m reneus_mi.capture.colmap SPARSE_DIR --images IMAGES_DIR --container MESH --ior 1.5 \\
+    python -m reneus_mi.colmap SPARSE_DIR --images IMAGES_DIR --container MESH --ior 1.5 \\
         -o DATASET_DIR [--max-size N | --downscale F]
 """
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
-import sys
 
 import numpy as np
 
-from reneus_mi import guards
 from reneus_mi.capture import photos
 from reneus_mi.capture.export import write_views
 from reneus_mi.data.checks import check_ior
 from reneus_mi.data.images import image_size
 from reneus_mi.data.undistort import distortion, output_size, pinhole_K, undistort
-from reneus_mi.errors import ReneusError, exit_on_error
 from reneus_mi.geometry.container import load_container, mesh_type
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError
 
 
 def _lens(camera, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -131,25 +129,3 @@ def convert(sparse: str, images_dir: str, container: str, ior: float, out: str, 
                 {'IOR': float(ior), 'mesh_outside': name, 'source': f'COLMAP model {os.path.abspath(sparse)}'},
                 [{'photo': os.path.basename(f)} for f in files])
     return len(names)
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog='python -m reneus_mi.capture.colmap',
-                                     description='A reneus-mi dataset from photographs posed by a COLMAP sparse model.')
-    parser.add_argument('sparse', metavar='SPARSE_DIR', help='COLMAP sparse model folder (e.g. sparse/0)')
-    parser.add_argument('--images', required=True, help='folder of the photographs the model names')
-    parser.add_argument('--container', required=True, help='container mesh (.ply/.obj) in the model\'s frame')
-    parser.add_argument('--ior', type=float, required=True, help='index of refraction of the container')
-    parser.add_argument('-o', '--output', required=True, help='dataset folder to write (new or empty)')
-    parser.add_argument('--max-size', type=int, help='largest side in pixels of the dataset\'s images')
-    parser.add_argument('--downscale', type=float, help='divide the photographs\' size by this factor')
-    args = parser.parse_args(argv)
-    with exit_on_error(RuntimeError):
-        n = convert(args.sparse, args.images, args.container, args.ior, args.output,
-                    max_size=args.max_size, downscale=args.downscale)
-    print(f'wrote {args.output}: {n} views')
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())

@@ -15,7 +15,7 @@ import numpy as np
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.placement import pose_matrix
 from reneus_mi.data.undistort import opencv_K
-from reneus_mi.io import atomic_path
+from reneus_mi.utils.io import atomic_path
 
 _GREEN, _RED, _BLUE, _YELLOW, _CYAN = (0, 200, 0), (0, 0, 255), (255, 80, 0), (0, 230, 255), (255, 255, 0)
 

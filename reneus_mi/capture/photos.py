@@ -12,9 +12,9 @@ import os
 import cv2
 import numpy as np
 
-from reneus_mi import limits
 from reneus_mi.data import images
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils import limits
+from reneus_mi.utils.errors import ReneusError
 
 #: File types taken as photographs.
 PHOTO_EXTENSIONS = ('.jpg', '.jpeg', '.png', '.tif', '.tiff')

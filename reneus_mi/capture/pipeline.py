@@ -1,5 +1,5 @@
 """From a folder of photographs to a dataset: :func:`run`, the pipeline of ``python -m
-reneus_mi.capture PHOTOS -o DATASET`` (:mod:`~reneus_mi.capture.command`) and of a batch's
+reneus_mi.capture PHOTOS -o DATASET`` (:mod:`reneus_mi.capture.__main__`) and of a batch's
 capture folders.
 
 1. Find the board in every photograph (:mod:`~reneus_mi.capture.board`); refuse, in one line,
@@ -24,7 +24,6 @@ import warnings
 import cv2
 import numpy as np
 
-from reneus_mi import guards
 from reneus_mi.capture import board as board_mod
 from reneus_mi.capture import export, photos, settings as settings_mod
 from reneus_mi.capture.board import Board
@@ -32,7 +31,8 @@ from reneus_mi.capture.calibrate import Calibration, calibrate
 from reneus_mi.capture.exposure import measure
 from reneus_mi.capture.register import Outline, register
 from reneus_mi.data.undistort import output_size, pinhole_K, undistort
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError
 
 #: Corners this many pixels of the photograph outside the container's projection still count
 #: as seen through it (refraction at its edges, the corner finder's window).

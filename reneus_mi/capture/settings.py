@@ -17,9 +17,9 @@ import math
 import os
 import typing
 
-from reneus_mi.cli import field_docs
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import load_json
+from reneus_mi.utils.cli import field_docs
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import load_json
 
 #: The capture file looked for beside the photographs.
 CAPTURE_FILE = 'capture.json'

@@ -13,35 +13,32 @@ and the container as measured). Written apart (``TRUTH``): ``truth.json`` (intri
 distortion, every camera in the board's frame, exposure gains, the container's place, the
 light), ``container.ply`` and ``specimen.ply`` in the board's frame, millimetres.
 
-Command line::
+The command (:mod:`reneus_mi.simulate`)::
 
-    python -m reneus_mi.capture.simulate PHOTOS --truth TRUTH [--specimen insect] [--views 16]
+    python -m reneus_mi.simulate PHOTOS --truth TRUTH [--specimen insect] [--views 16]
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import os
-import sys
 
 import cv2
 import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi import guards
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.placement import board_mesh, local_mesh
-from reneus_mi.data.dataset import CONTACT_GAP
 from reneus_mi.capture.settings import CAPTURE_FILE, CaptureSettings, to_json
 from reneus_mi.data.cameras import look_at
-from reneus_mi.geometry.container import shading_mesh
-from reneus_mi.errors import exit_on_error
-from reneus_mi.io import atomic_path, atomic_write_text
+from reneus_mi.data.dataset import CONTACT_GAP
 from reneus_mi.data.objects import load_object
 from reneus_mi.data.scene_xml import sensor_dict
 from reneus_mi.data.synth import GAMMA, write_container, write_object
+from reneus_mi.geometry.container import shading_mesh
+from reneus_mi.utils import guards
+from reneus_mi.utils.io import atomic_path, atomic_write_text
 
 
 @dataclasses.dataclass
@@ -273,23 +270,3 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
               'frame': 'board (OpenCV ChArUco), millimetres'}
     atomic_write_text(os.path.join(truth, 'truth.json'), json.dumps(result, indent=2))
     return result
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog='python -m reneus_mi.capture.simulate', description=__doc__.split('\n\n')[0])
-    parser.add_argument('photos', metavar='PHOTOS', help='folder for the photographs and capture.json (new or empty)')
-    parser.add_argument('--truth', required=True, help='folder for the ground truth (new or empty)')
-    for f in dataclasses.fields(Rig):
-        if f.type in ('int', 'float', 'str'):
-            parser.add_argument('--' + f.name.replace('_', '-'), type={'int': int, 'float': float, 'str': str}[f.type],
-                                default=f.default, help=f'(default: {f.default})')
-    args = parser.parse_args(argv)
-    rig = Rig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(Rig) if hasattr(args, f.name)})
-    with exit_on_error(RuntimeError):
-        result = simulate(rig, args.photos, args.truth)
-    print(f"wrote {len(result['views'])} photographs to {args.photos}, the truth to {args.truth}")
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())

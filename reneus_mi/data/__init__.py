@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import os
 
-from reneus_mi.errors import ReneusError
-from reneus_mi import guards
 from reneus_mi.data import blender
 from reneus_mi.data import neus_format as neus
 from reneus_mi.data.dataset import Dataset, check_writable
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError
 
 FORMATS = {'blender': blender, 'neus': neus}
 

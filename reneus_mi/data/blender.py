@@ -29,14 +29,14 @@ import os
 
 import numpy as np
 
-from reneus_mi.data.undistort import DISTORTION_KEYS, distortion, undistort
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_write_text
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
                                     has_skew, intrinsics)
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
 from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_image, reduced_size, resize,
                                    write_image)
+from reneus_mi.data.undistort import DISTORTION_KEYS, distortion, undistort
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_write_text
 
 #: Metadata file names, in order of preference.
 TRANSFORMS_FILES = ('transforms.json', 'transforms_train.json')

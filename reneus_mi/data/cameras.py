@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 #: Right-multiplying a c2w matrix by this swaps OpenCV and OpenGL camera axes.
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from reneus_mi.data.cameras import pixel_rays
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 #: The container centre may project this far (fraction of the image size) outside the image.
 FRAME_MARGIN = 0.25

@@ -29,8 +29,8 @@ from reneus_mi.data.cameras import check_c2w, check_K, pixel_rays
 from reneus_mi.data.checks import check_ior, check_views
 from reneus_mi.data.images import read_image
 from reneus_mi.data.masks import container_masks
-from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.container import bounding_sphere, load_container, mesh_type
+from reneus_mi.utils.errors import ReneusError
 
 
 #: Gap (mm) between the container's bottom and the board in rendered scenes (the board lies

@@ -20,9 +20,9 @@ import mitsuba as mi
 import numpy as np
 import OpenEXR
 
-from reneus_mi import limits
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_mitsuba_write
+from reneus_mi.utils import limits
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_mitsuba_write
 
 #: File extensions tried, in this order, for a NeRF ``file_path`` without one.
 IMAGE_EXTENSIONS = ('.png', '.jpg', '.jpeg', '.exr', '.tif', '.tiff',

@@ -33,10 +33,10 @@ import numpy as np
 
 from reneus_mi.data.cameras import compose_projection, decompose_projection
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_savez, atomic_write_text
 from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_image, read_mask, reduced_size,
                                    resize, write_image)
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_savez, atomic_write_text
 
 CAMERAS_FILE = 'cameras_sphere.npz'
 META_FILE = 'reneus.json'

@@ -28,10 +28,10 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.errors import ReneusError
 from reneus_mi.fields.base import Field
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.geometry.surface import extract_mesh
+from reneus_mi.utils.errors import ReneusError
 
 
 # ----------------------------------------------------------------- SDF parts

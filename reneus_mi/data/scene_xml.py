@@ -30,13 +30,13 @@ import mitsuba as mi
 import numpy as np
 
 from reneus_mi.config import AMBIENT, IOR
-from reneus_mi.data.dataset import CONTACT_GAP, Dataset
-from reneus_mi import guards
 from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
-from reneus_mi.geometry.container import load_container, mesh_type, mitsuba_reads
-from reneus_mi.errors import ReneusError
+from reneus_mi.data.dataset import CONTACT_GAP, Dataset
 from reneus_mi.data.images import write_image
-from reneus_mi.io import atomic_export, atomic_open
+from reneus_mi.geometry.container import load_container, mesh_type, mitsuba_reads
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_export, atomic_open
 
 #: Samples per pixel of the written sampler.
 SAMPLE_COUNT = 16

@@ -33,16 +33,16 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from reneus_mi import guards, limits
+from reneus_mi.config import AMBIENT, GAMMA, IOR
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.data.masks import container_masks
-from reneus_mi.geometry.container import container_shape, shading_mesh
-from reneus_mi.config import AMBIENT, GAMMA, IOR
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_folder, atomic_mitsuba_write, atomic_path, atomic_write_text
 from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
+from reneus_mi.geometry.container import container_shape, shading_mesh
+from reneus_mi.utils import guards, limits
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_folder, atomic_mitsuba_write, atomic_path, atomic_write_text
 
 #: Distance of the cameras from the origin.
 CAMERA_DISTANCE = 5.0

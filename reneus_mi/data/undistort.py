@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from reneus_mi.data.images import reduction, scaled_size
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 #: Distortion coefficients in OpenCV's order.
 DISTORTION_KEYS = ('k1', 'k2', 'p1', 'p2', 'k3')

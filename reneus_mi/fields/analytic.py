@@ -12,8 +12,8 @@ from typing import ClassVar
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.errors import ReneusError, check_numbers
 from reneus_mi.fields.base import Field, FieldConfig
+from reneus_mi.utils.errors import ReneusError, check_numbers
 
 Vector = tuple[float, float, float]
 

@@ -29,9 +29,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_savez, check_npz_file
-from reneus_mi.param_groups import ParamGroup
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_savez, check_npz_file
+from reneus_mi.utils.param_groups import ParamGroup
 
 # Vertices of a regular tetrahedron, |e_k|^2 = 3 and sum_k e_k e_k^T = 4 I.
 _TETRA = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1.0, 1.0))

@@ -24,10 +24,10 @@ import mitsuba as mi
 import numpy as np
 
 from reneus_mi.fields.activations import Sine, SkipMLP, Softplus
-from reneus_mi import limits
-from reneus_mi.errors import ReneusError, check_choice, check_numbers
 from reneus_mi.fields.base import Field, FieldConfig
-from reneus_mi.variant import is_cuda
+from reneus_mi.utils import limits
+from reneus_mi.utils.errors import ReneusError, check_choice, check_numbers
+from reneus_mi.utils.variant import is_cuda
 
 # SIREN's last layer is scaled down by this factor in the SDF head only: the
 # analytic sphere then dominates the initial SDF (residual ~1e-3, gradient

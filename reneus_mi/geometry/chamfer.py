@@ -24,9 +24,9 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from reneus_mi import limits
-from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.container import inside
+from reneus_mi.utils import limits
+from reneus_mi.utils.errors import ReneusError
 
 #: The paper's minimum number of sample points.
 MIN_POINTS = 10000

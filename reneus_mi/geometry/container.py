@@ -34,8 +34,8 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.mesh import MESH_EXTENSIONS, load_mesh, mitsuba_mesh, signed_volume
+from reneus_mi.utils.errors import ReneusError
 
 #: Mitsuba's shape plugin of each mesh format it reads; a container in another format of
 #: :data:`~reneus_mi.geometry.mesh.MESH_EXTENSIONS` (STL, OFF: CAD exports) is handed to

@@ -12,8 +12,8 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_export
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_export
 
 #: Mesh files the package reads.
 MESH_EXTENSIONS = ('.ply', '.obj', '.stl', '.off')

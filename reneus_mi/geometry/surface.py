@@ -23,11 +23,11 @@ from scipy.spatial import cKDTree
 from skimage.measure import marching_cubes
 import trimesh
 
-from reneus_mi import limits
-from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.fields.base import Field
 from reneus_mi.geometry.container import inside, load_container
 from reneus_mi.render.frame import FieldFrame
+from reneus_mi.utils import limits
+from reneus_mi.utils.errors import NoSurfaceError, ReneusError
 
 #: Post-processing rules understood by :func:`postprocess`.
 POSTPROCESS_MODES = ('clean', 'largest', 'crop', 'none')

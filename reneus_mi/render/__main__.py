@@ -15,11 +15,11 @@ import numpy as np
 
 import mitsuba as mi
 
-from reneus_mi import guards
 from reneus_mi.data.images import WRITE_EXTENSIONS, write_image
-from reneus_mi.errors import ReneusError, exit_on_error, user_message
-from reneus_mi.io import check_npz_file
 from reneus_mi.render.loading import check_render_size, load_scene, reneus_integrator
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError, exit_on_error, user_message
+from reneus_mi.utils.io import check_npz_file
 
 
 def main(argv=None) -> int:

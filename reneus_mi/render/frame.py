@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 Vector = tuple[float, float, float]
 

@@ -13,9 +13,9 @@ import os
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi import limits
-from reneus_mi.errors import ReneusError, user_message
 from reneus_mi.geometry.container import check_scene_containers
+from reneus_mi.utils import limits
+from reneus_mi.utils.errors import ReneusError, user_message
 
 #: Bytes per sample of a render in flight: ray, surface interaction, colour
 #: and the integrator's per-lane state. An estimate (not measured) that only

@@ -31,7 +31,7 @@ import math
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi import limits
+from reneus_mi.utils import limits
 
 #: Opacity left to the parts of a segment that the grid removes (τ above).
 OPACITY_CUTOFF = 1e-4

@@ -12,8 +12,8 @@ import os
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_path
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_path
 
 #: Vertical field of view of the preview camera (degrees).
 FOV = 30.0

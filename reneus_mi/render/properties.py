@@ -16,11 +16,11 @@ from dataclasses import dataclass
 import mitsuba as mi
 
 from reneus_mi.config import ModelConfig, RenderConfig, field_config_class, typed_value
-from reneus_mi.errors import ReneusError
 from reneus_mi.fields import FIELD_CONFIGS, Field, load_field
 from reneus_mi.presets import preset
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.render.ray_samplers import SamplerConfig
+from reneus_mi.utils.errors import ReneusError
 
 #: Properties that are not settings of the model.
 OTHER = ('preset', 'field', 'field_center', 'field_scale', 'dataset')

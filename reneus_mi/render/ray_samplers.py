@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.errors import ReneusError, check_numbers
 from reneus_mi.render.occupancy import OccupancyGrid
+from reneus_mi.utils.errors import ReneusError, check_numbers
 
 #: Added to Φ_s in the α ratio, as in NeuS: it keeps α finite where Φ_s(prev) → 0.
 ALPHA_EPS = 1e-5

@@ -44,9 +44,9 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.container import CREASE_ANGLE, shading_normals
-from reneus_mi.param_groups import ParamGroup
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.param_groups import ParamGroup
 
 #: Light models: the scene's emitter as given, one refinable RGB radiance, order-2 SH.
 LIGHTS = ('emitter', 'ambient', 'sh')

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.errors import ReneusError
 from reneus_mi.render.ray_samplers import NeuSSampler, composite, neus_alpha, segment_layout
+from reneus_mi.utils.errors import ReneusError
 
 
 @dataclass

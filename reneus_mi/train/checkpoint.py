@@ -14,10 +14,10 @@ import zipfile
 
 import numpy as np
 
-from reneus_mi.errors import ReneusError
 from reneus_mi.fields import Field
 from reneus_mi.render.frame import FieldFrame
-from reneus_mi.io import atomic_savez
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_savez
 
 
 def save(path: str, field: Field, opt, names: dict[str, str], *, iteration: int, best_loss: float,

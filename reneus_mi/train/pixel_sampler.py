@@ -13,8 +13,8 @@ import mitsuba as mi
 import numpy as np
 
 from reneus_mi.data import Dataset
-from reneus_mi.errors import ReneusError
 from reneus_mi.render.seeds import PIXELS, opaque_seed, step_seed
+from reneus_mi.utils.errors import ReneusError
 
 #: Bytes per photograph pixel that the sampler holds beyond the dataset: the colours on the
 #: device (12) and the masked pixels' indices (4); the int64 indices it builds them from fit in

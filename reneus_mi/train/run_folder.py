@@ -40,10 +40,10 @@ from dataclasses import dataclass
 
 import fcntl
 
-from reneus_mi import guards
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_folder, atomic_write_text, is_temporary
 from reneus_mi.train.checkpoint import load_meta
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_folder, atomic_write_text, is_temporary
 
 #: The states of a run folder, as :meth:`RunFolder.state` names them.
 STATES = ('new', 'running', 'resumable', 'finished', 'failed')
@@ -125,7 +125,7 @@ class RunFolder:
         """Check the folder before a run writes into it; return its absolute path.
 
         Apart from the inputs and any dataset folder
-        (:func:`~reneus_mi.guards.check_output_dir`); a new run needs a new or
+        (:func:`~reneus_mi.utils.guards.check_output_dir`); a new run needs a new or
         empty folder, or one holding only what a run writes without its
         checkpoint (a run killed before its first one, which starts over);
         ``resume`` accepts whatever the run folder holds.

@@ -22,14 +22,14 @@ import mitsuba as mi
 from reneus_mi.config import ReconstructionConfig, from_dict, replace, to_dict, with_settings
 from reneus_mi.data import Dataset, load_dataset
 from reneus_mi.data.dataset import check_same_dataset, dataset_fingerprint
-from reneus_mi.errors import ReneusError
 from reneus_mi.geometry.surface import check_resolution
-from reneus_mi.io import check_npz_file
 from reneus_mi.presets import preset
 from reneus_mi.render.loading import check_field_reaches, load_scene, reneus_integrator
 from reneus_mi.train.pixel_sampler import BYTES_PER_PIXEL
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.train.trainer import BUDGET_RANGE, Trainer, TrainingError, check_batch
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import check_npz_file
 
 
 @dataclass

@@ -27,11 +27,9 @@ import numpy as np
 from tqdm import tqdm
 import trimesh
 
-from reneus_mi import interrupt, limits
 from reneus_mi.config import TrainConfig
 from reneus_mi.data import Dataset
 from reneus_mi.data.images import write_image
-from reneus_mi.errors import NoSurfaceError, ReneusError
 from reneus_mi.fields import load_field
 from reneus_mi.geometry.mesh import gltf_from_world, write_glb, write_mesh
 from reneus_mi.geometry.surface import components, field_colors, field_mesh
@@ -43,7 +41,9 @@ from reneus_mi.train import checkpoint, losses
 from reneus_mi.train.pixel_sampler import PixelSampler
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.train.silhouette import SilhouetteLoss
-from reneus_mi.variant import is_cuda
+from reneus_mi.utils import interrupt, limits
+from reneus_mi.utils.errors import NoSurfaceError, ReneusError
+from reneus_mi.utils.variant import is_cuda
 
 #: Finest final mesh that following the field's detail chooses (a 512^3 grid and its
 #: clean-up peak at about 3 GB).

@@ -7,7 +7,7 @@ import os
 import pytest
 
 from reneus_mi.batch.collection import read_collection
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 
 @pytest.fixture

@@ -11,8 +11,8 @@ import pytest
 
 from reneus_mi.capture import command, settings
 from reneus_mi.capture.simulate import Rig, distort_image
-from reneus_mi.data.undistort import undistort
 from reneus_mi.data import load_dataset
+from reneus_mi.data.undistort import undistort
 
 
 @pytest.fixture(scope='module')

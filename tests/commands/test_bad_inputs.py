@@ -29,10 +29,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from reneus_mi import evaluate, extract, interrupt, optimize, scene, synth
+from reneus_mi import evaluate, extract, optimize, scene, synth
+
 from reneus_mi.capture import colmap as capture_colmap, command as capture, pipeline as capture_pipeline
 from reneus_mi.render import __main__ as render
 from reneus_mi.train.run_folder import RunFolder
+from reneus_mi.utils import interrupt
 from tiny import assert_same_state, new_trainer, train_state
 
 TRAIN = ['--iterations', '2', '--checkpoint-every', '1', '--batch-rays', '64', '--warm-up', '1',
@@ -93,7 +95,7 @@ def one_error_line(proc, *parts) -> None:
 @pytest.fixture
 def small_machine(monkeypatch):
     """8 GiB of memory, whatever this machine has: size limits do not depend on the host."""
-    from reneus_mi import limits
+    from reneus_mi.utils import limits
     monkeypatch.setattr(limits, 'physical_memory', lambda: 8 * 2**30)
 
 
@@ -705,7 +707,7 @@ def test_capture_flag_contradicts_the_capture_file(shots, tmp_path):
 
 
 def test_capture_beyond_memory_names_the_flags(shots, tmp_path, monkeypatch):
-    from reneus_mi import limits
+    from reneus_mi.utils import limits
     monkeypatch.setattr(limits, 'physical_memory', lambda: 2**20)
     photos = photo_copies(shots, tmp_path / 'photos', 3)
     refused(capture.main, [photos, '-o', tmp_path / 'out', *CAPTURE],
@@ -972,7 +974,7 @@ def test_ctrl_c_while_capture_writes(shots, tmp_path):
 def test_interrupt_wrapped_by_mitsuba_is_one_line(capsys):
     """In-process (no handler of its own), a KeyboardInterrupt that Mitsuba wrapped in a
     RuntimeError ends as an interrupt, not as 'error: KeyboardInterrupt()'."""
-    from reneus_mi.errors import exit_on_error
+    from reneus_mi.utils.errors import exit_on_error
     with pytest.raises(SystemExit) as exit_info, exit_on_error(RuntimeError):
         try:
             raise KeyboardInterrupt
@@ -1072,7 +1074,7 @@ def test_interrupted_step_leaves_the_batch_stream_alone(world, tmp_path):
 
 
 def test_validation_without_surface_goes_on(world, tmp_path, monkeypatch):
-    from reneus_mi.errors import NoSurfaceError
+    from reneus_mi.utils.errors import NoSurfaceError
     trainer = new_trainer(world['scene'], tmp_path / 'out')
 
     def no_surface(*args, **kwargs):
@@ -1120,7 +1122,7 @@ def test_optimize_help_states_each_default_once(capsys):
 
 
 def test_final_mesh_without_surface_says_the_run_can_go_on(world, tmp_path, monkeypatch):
-    from reneus_mi.errors import NoSurfaceError
+    from reneus_mi.utils.errors import NoSurfaceError
     trainer = new_trainer(world['scene'], tmp_path / 'out')
     trainer.iteration = trainer.cfg.iterations          # nothing left to train
 
@@ -1242,7 +1244,7 @@ def full_disk(monkeypatch):
     """Every atomic write lands on /dev/full: the kernel's own 'No space left on device'."""
     if not os.path.exists('/dev/full'):
         pytest.skip('no /dev/full on this system')
-    from reneus_mi import io
+    from reneus_mi.utils import io
 
     def new_temporary(directory, suffix):
         path = os.path.join(directory, f'{io.TEMPORARY_PREFIX}full{suffix}')

@@ -8,8 +8,12 @@ import tomllib
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..'))
 COMMANDS = {'optimize': 'reneus_mi.optimize', 'render': 'reneus_mi.render.__main__',
             'extract': 'reneus_mi.extract', 'evaluate': 'reneus_mi.evaluate', 'scene': 'reneus_mi.scene',
-            'synth': 'reneus_mi.synth', 'capture': 'reneus_mi.capture.command',
-            'batch': 'reneus_mi.batch.__main__'}
+            'synth': 'reneus_mi.synth', 'capture': 'reneus_mi.capture.__main__',
+            'batch': 'reneus_mi.batch.__main__', 'board': 'reneus_mi.board', 'colmap': 'reneus_mi.colmap',
+            'simulate': 'reneus_mi.simulate'}
+#: The package's top level: the commands that are modules, and the configuration.
+TOP_LEVEL = {'optimize', 'extract', 'evaluate', 'scene', 'synth', 'board', 'colmap', 'simulate', 'config',
+             'presets'}
 
 
 def test_console_scripts_are_the_commands_mains():
@@ -22,17 +26,34 @@ def test_console_scripts_are_the_commands_mains():
 
 
 def test_no_library_module_imports_a_command():
-    library = []
-    for folder in ('reneus_mi', 'plugins'):
-        for dirpath, _, names in os.walk(os.path.join(ROOT, folder)):
-            library += [os.path.join(dirpath, n) for n in names if n.endswith('.py')]
-    for path in library:
-        module = os.path.relpath(path, ROOT)[:-3].replace(os.sep, '.')
-        if module in COMMANDS.values() or module in ('reneus_mi.cli', 'reneus_mi.capture.__main__'):
-            continue
+    for module, path in _library_modules():
         for node in ast.walk(ast.parse(open(path).read())):
             names = ([node.module] + [f'{node.module}.{a.name}' for a in node.names]
                      if isinstance(node, ast.ImportFrom) and node.module else
                      [a.name for a in node.names] if isinstance(node, ast.Import) else [])
-            hit = [n for n in names if n in COMMANDS.values() or n == 'reneus_mi.render.__main__']
+            hit = [n for n in names if n in COMMANDS.values()]
             assert not hit, f'{module} imports the command {hit[0]}'
+
+
+def _library_modules():
+    for folder in ('reneus_mi', 'plugins'):
+        for dirpath, _, names in os.walk(os.path.join(ROOT, folder)):
+            for n in names:
+                if n.endswith('.py'):
+                    path = os.path.join(dirpath, n)
+                    module = os.path.relpath(path, ROOT)[:-3].replace(os.sep, '.')
+                    if module not in COMMANDS.values():
+                        yield module, path
+
+
+def test_only_commands_have_a_main():
+    for module, path in _library_modules():
+        defined = [node.name for node in ast.parse(open(path).read()).body
+                   if isinstance(node, ast.FunctionDef) and node.name == 'main']
+        assert not defined, f'{module} defines main(): a command belongs in python -m reneus_mi.<command>'
+
+
+def test_the_top_level_shows_the_commands_and_the_configuration():
+    package = os.path.join(ROOT, 'reneus_mi')
+    modules = {n[:-3] for n in os.listdir(package) if n.endswith('.py') and n != '__init__.py'}
+    assert modules == TOP_LEVEL

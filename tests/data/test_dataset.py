@@ -9,11 +9,11 @@ import pytest
 import trimesh
 
 from reneus_mi.data import Dataset, load_dataset, write_dataset
-from reneus_mi.data.dataset import check_same_dataset, dataset_fingerprint
-from reneus_mi.errors import ReneusError
 from reneus_mi.data.cameras import intrinsics, look_at
-from reneus_mi.data.masks import container_masks
+from reneus_mi.data.dataset import check_same_dataset, dataset_fingerprint
 from reneus_mi.data.images import read_image, write_image
+from reneus_mi.data.masks import container_masks
+from reneus_mi.utils.errors import ReneusError
 
 H, W = 12, 16
 BOX = (1.0, 0.8, 0.6)

@@ -8,8 +8,8 @@ import pytest
 import trimesh
 
 from reneus_mi.data import Dataset, write_dataset
-from reneus_mi.data.masks import container_masks
 from reneus_mi.data.cameras import intrinsics, look_at
+from reneus_mi.data.masks import container_masks
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 from reneus_mi.scene import main
 

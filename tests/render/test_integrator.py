@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from reference import glass_scene, path_reference, path_scene, pixel_rays, reneus_pixels, reneus_scene
-from reneus_mi.errors import user_message
 from reneus_mi.plugins import reneus as plugin
+from reneus_mi.utils.errors import user_message
 
 RES = 24
 SPP = 8192

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from reneus_mi.errors import ReneusError
 from reneus_mi.render.preview import FOV, MARGIN, render_preview
+from reneus_mi.utils.errors import ReneusError
 
 
 def _linear(png):

@@ -159,7 +159,7 @@ def test_reverse_gathers_reuse_their_kernels_at_any_width():
     """The reverse mode of a gather is a scatter-add into the source's gradient, and the ray
     tree's arrays (live rays, inside segments) change width every step. Dr.Jit's LLVM
     backend, left to choose, expanded such targets per thread with the width compiled in:
-    refining runs compiled a kernel at almost every step (reneus_mi.variant switches the
+    refining runs compiled a kernel at almost every step (reneus_mi.utils.variant switches the
     expansion off). The kernels must be the same ones whatever the width, and the adjoints
     summed right."""
     def kernels(width):

@@ -10,14 +10,14 @@ by Chamfer-L1 x100 (the paper's metric and post-processing).
 
 import pytest
 
-from reneus_mi.train import runs
 from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
-from reneus_mi.geometry.chamfer import chamfer
-from reneus_mi.geometry.mesh import load_mesh
-from reneus_mi.train.runs import spec_of_scene
 from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.data.synth import make_dataset
+from reneus_mi.geometry.chamfer import chamfer
+from reneus_mi.geometry.mesh import load_mesh
+from reneus_mi.train import runs
+from reneus_mi.train.runs import spec_of_scene
 
 ITERATIONS = 200
 

@@ -15,17 +15,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from reneus_mi.train import runs
 from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
-from reneus_mi.errors import ReneusError
+from reneus_mi.data.scene_xml import write_scene
+from reneus_mi.data.synth import make_dataset, miscalibrated
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.mesh import load_mesh
-from reneus_mi.train.runs import spec_of_scene
-from reneus_mi.data.scene_xml import write_scene
-from reneus_mi.train.silhouette import SilhouetteLoss
 from reneus_mi.render.surroundings import ContainerPose
-from reneus_mi.data.synth import make_dataset, miscalibrated
+from reneus_mi.train import runs
+from reneus_mi.train.runs import spec_of_scene
+from reneus_mi.train.silhouette import SilhouetteLoss
+from reneus_mi.utils.errors import ReneusError
 
 
 # ------------------------------------------------------------ recovery runs

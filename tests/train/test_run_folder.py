@@ -11,9 +11,9 @@ import pytest
 
 import reneus_mi
 
-from reneus_mi.errors import ReneusError
-from reneus_mi.io import atomic_path, atomic_write_text
 from reneus_mi.train.run_folder import RunFolder, RunState, recent_psnr
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.io import atomic_path, atomic_write_text
 
 
 def test_run_dir(tmp_path):
@@ -56,8 +56,8 @@ import os, sys, time, types
 for name in ('reneus_mi', 'reneus_mi.train'):
     sys.modules[name] = types.ModuleType(name)
     sys.modules[name].__path__ = [os.path.join(sys.argv[4], *name.split('.'))]
-from reneus_mi.errors import ReneusError
 from reneus_mi.train.run_folder import RunLock
+from reneus_mi.utils.errors import ReneusError
 print('ready', flush=True)
 while not os.path.exists(sys.argv[2]):
     pass

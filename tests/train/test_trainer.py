@@ -11,8 +11,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from reneus_mi.train import runs
 from reneus_mi.config import replace
+from reneus_mi.train import runs
 from reneus_mi.train.trainer import next_batch, training_bytes
 from tiny import new_trainer
 

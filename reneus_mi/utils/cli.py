@@ -15,7 +15,7 @@ import textwrap
 import typing
 
 from reneus_mi.config import text_value
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 
 def field_docs(cls) -> dict[str, str]:

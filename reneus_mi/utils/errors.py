@@ -17,7 +17,7 @@ import math
 import sys
 import typing
 
-from reneus_mi import interrupt
+from reneus_mi.utils import interrupt
 
 
 class ReneusError(ValueError):
@@ -61,7 +61,7 @@ def exit_on_error(*extra: type[BaseException]):
     Catches library errors (``ValueError``, so :class:`ReneusError`),
     ``OSError`` (a full disk, a permission denied: ordinary failures of the
     machine) and the ``extra`` types (e.g. ``RuntimeError`` from Mitsuba). A
-    ``KeyboardInterrupt`` (where :mod:`reneus_mi.interrupt` has not taken Ctrl-C
+    ``KeyboardInterrupt`` (where :mod:`reneus_mi.utils.interrupt` has not taken Ctrl-C
     itself), also one that Mitsuba wrapped, ends with its one line and status 130.
     """
     try:

@@ -20,8 +20,8 @@ import zipfile
 
 import numpy as np
 
-from reneus_mi import interrupt
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils import interrupt
+from reneus_mi.utils.errors import ReneusError
 
 #: The name of every temporary of :func:`atomic_path` starts so (a kill may leave one behind).
 TEMPORARY_PREFIX = '.tmp-'
@@ -32,7 +32,7 @@ def atomic_path(path: str | os.PathLike):
     """Yield a temporary path beside ``path``; on success rename it over ``path``.
 
     The temporary goes if the write fails or the command is interrupted
-    (:func:`reneus_mi.interrupt.temporary`); a failed write (a full disk) names ``path``.
+    (:func:`reneus_mi.utils.interrupt.temporary`); a failed write (a full disk) names ``path``.
     """
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))

@@ -18,7 +18,7 @@ import os
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 SUPPORTED = ('llvm_ad_rgb', 'cuda_ad_rgb')
 #: Targets larger than this are never expanded (Dr.Jit's default: 1M entries); see above.

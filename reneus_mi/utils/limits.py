@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 #: Share of the physical memory one request may take.
 MEMORY_FRACTION = 0.8

@@ -4,13 +4,13 @@ A place to write (:func:`check_output_file`, :func:`check_output_dir`) must be
 writable, must not lie in or over a folder holding input data (a dataset:
 photographs and cameras) or one of the command's inputs, and an existing file
 is never replaced unless the caller says it may be. Sizes are checked by
-:mod:`reneus_mi.limits`, run folders by :mod:`reneus_mi.train.run_folder`.
+:mod:`reneus_mi.utils.limits`, run folders by :mod:`reneus_mi.train.run_folder`.
 """
 from __future__ import annotations
 
 import os
 
-from reneus_mi.errors import ReneusError
+from reneus_mi.utils.errors import ReneusError
 
 #: Files that make a folder a dataset (its photographs are irreplaceable).
 DATASET_MARKERS = ('transforms.json', 'transforms_train.json', 'cameras_sphere.npz')
