@@ -6,7 +6,7 @@
 A synthetic dataset (the statuette in its glass block, ``--views`` at ``--res``,
 rendered once into ``--data`` by Mitsuba's path tracer) is copied into a
 collection of ``--specimens`` specimens; each engine and worker count runs the
-whole batch (``reneus_mi.batch.runner.run_batch``: worker start, the run, the
+whole batch (``reneus_mi.batch.dispatch.run_batch``: worker start, the run, the
 mesh, Chamfer and the preview) into a fresh folder. N workers share the
 machine's cores: N runs at a time of cores / N Dr.Jit threads each (Ray: a
 local Ray of N CPUs, tasks of one CPU's share each). The wall time of the batch
@@ -27,7 +27,7 @@ import time
 import reneus_mi  # noqa: F401
 from reneus_mi.batch import engines
 from reneus_mi.batch.collection import read_collection
-from reneus_mi.batch.runner import run_batch
+from reneus_mi.batch.dispatch import run_batch
 from reneus_mi.utils.io import write_section
 
 #: Load average above which the figures are marked as from a loaded machine.

@@ -30,7 +30,8 @@ from reneus_mi.geometry.container import CREASE_ANGLE
 from reneus_mi.geometry.surface import POSTPROCESS_MODES
 from reneus_mi.render.ray_samplers import SamplerConfig
 from reneus_mi.render.surroundings import LIGHTS
-from reneus_mi.utils.errors import ReneusError, check_choice, check_numbers
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.validate import check_choice, check_numbers
 
 MODES = ('reneus', 'neus', 'neus_plus')
 TERMINALS = ('trace', 'ambient', 'black')

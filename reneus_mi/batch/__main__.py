@@ -17,10 +17,10 @@ import sys
 import warnings
 
 from reneus_mi.batch import engines, worker
+from reneus_mi.batch.batch_folder import BatchFolder
 from reneus_mi.batch.collection import read_collection
+from reneus_mi.batch.dispatch import run_batch
 from reneus_mi.batch.engines import DEVICES, ENGINES
-from reneus_mi.batch.folder import BatchFolder
-from reneus_mi.batch.runner import run_batch
 from reneus_mi.train.run_folder import RunState
 from reneus_mi.utils.errors import exit_on_error
 

@@ -196,7 +196,7 @@ def _checked(s: Specimen, where: str) -> Specimen:
     """``s`` once its name, preset and settings are known good (its data is its run's to check)."""
     from reneus_mi.config import with_settings
     from reneus_mi.presets import preset
-    from reneus_mi.batch.folder import RESERVED
+    from reneus_mi.batch.batch_folder import RESERVED
     if not NAME.fullmatch(s.name) or s.name in RESERVED:
         raise ReneusError(f'{where}: name {s.name!r}; expected letters, digits and . _ + - (a folder name, '
                           'not starting with a dot or _, not a summary file)')

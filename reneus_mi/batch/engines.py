@@ -411,7 +411,7 @@ def make_engine(name: str, configs, files_of, *, tasks: int, device: str = 'auto
     """The engine ``name`` for runs of ``configs`` (their ReconstructionConfigs), sized.
 
     ``tasks`` runs are to be placed; ``files_of(name)`` is a specimen's
-    :class:`~reneus_mi.batch.folder.SpecimenFiles`. Local: one worker per GPU, or on
+    :class:`~reneus_mi.batch.batch_folder.SpecimenFiles`. Local: one worker per GPU, or on
     the CPU ``cores // CORES_PER_RUN`` workers (at least one; no more than the memory
     holds or the tasks need) sharing the cores as Dr.Jit threads; ``workers`` and
     ``threads`` override. Ray and Slurm: ``cpus`` cores per run (default

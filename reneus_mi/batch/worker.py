@@ -37,7 +37,7 @@ def run_task(task: dict) -> dict:
     and skipped (finished before)."""
     import drjit as dr
     from reneus_mi.batch.collection import Specimen
-    from reneus_mi.batch.folder import BatchFolder
+    from reneus_mi.batch.batch_folder import BatchFolder
     from reneus_mi.utils.errors import ReneusError
     from reneus_mi.utils.variant import set_variant
     set_variant(task['variant'])

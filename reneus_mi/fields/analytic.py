@@ -13,7 +13,8 @@ import drjit as dr
 import mitsuba as mi
 
 from reneus_mi.fields.base import Field, FieldConfig
-from reneus_mi.utils.errors import ReneusError, check_numbers
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.validate import check_numbers
 
 Vector = tuple[float, float, float]
 

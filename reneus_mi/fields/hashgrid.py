@@ -39,8 +39,9 @@ import numpy as np
 
 from reneus_mi.fields.activations import Softplus
 from reneus_mi.fields.neus import NeuralField, NeuralFieldConfig, build_mlp, fan_in_uniform_init, mlp_size
-from reneus_mi.utils.errors import ReneusError, check_choice, check_numbers
+from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.param_groups import ParamGroup
+from reneus_mi.utils.validate import check_choice, check_numbers
 
 # Scale of the SDF head relative to its fan-in initialisation: the residual on
 # the sphere starts at ~1e-3 while every weight still gets a gradient.

@@ -26,7 +26,8 @@ import numpy as np
 from reneus_mi.fields.activations import Sine, SkipMLP, Softplus
 from reneus_mi.fields.base import Field, FieldConfig
 from reneus_mi.utils import limits
-from reneus_mi.utils.errors import ReneusError, check_choice, check_numbers
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.validate import check_choice, check_numbers
 from reneus_mi.utils.variant import is_cuda
 
 # SIREN's last layer is scaled down by this factor in the SDF head only: the

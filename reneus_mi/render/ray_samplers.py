@@ -33,7 +33,8 @@ import drjit as dr
 import mitsuba as mi
 
 from reneus_mi.render.occupancy import OccupancyGrid
-from reneus_mi.utils.errors import ReneusError, check_numbers
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.validate import check_numbers
 
 #: Added to Φ_s in the α ratio, as in NeuS: it keeps α finite where Φ_s(prev) → 0.
 ALPHA_EPS = 1e-5

@@ -1,6 +1,7 @@
 """The plumbing every room uses.
 
-- :mod:`~reneus_mi.utils.errors`: :class:`ReneusError`, one line per bad input, validators.
+- :mod:`~reneus_mi.utils.errors`: :class:`ReneusError`, one line per bad input.
+- :mod:`~reneus_mi.utils.validate`: the configuration dataclasses' range checks.
 - :mod:`~reneus_mi.utils.io`: atomic files and folders, ``.npz`` checks.
 - :mod:`~reneus_mi.utils.guards`: what a folder holds before a command writes into it.
 - :mod:`~reneus_mi.utils.limits`: memory and size limits checked before a kernel runs.

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from reneus_mi.batch import engines
+from reneus_mi.batch.batch_folder import BatchFolder
 from reneus_mi.batch.collection import read_collection
-from reneus_mi.batch.folder import BatchFolder
-from reneus_mi.batch.runner import run_batch
+from reneus_mi.batch.dispatch import run_batch
 from tiny import assert_same_state, file_state
 
 #: The broken specimen's fault, and the one line its run must end with.

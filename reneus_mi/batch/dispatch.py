@@ -27,8 +27,8 @@ import time
 from typing import Callable
 
 from reneus_mi.batch import summary
+from reneus_mi.batch.batch_folder import RESERVED, BatchFolder
 from reneus_mi.batch.collection import Specimen
-from reneus_mi.batch.folder import RESERVED, BatchFolder
 from reneus_mi.batch.worker import record_death
 from reneus_mi.train.run_folder import RunState
 from reneus_mi.utils import guards, interrupt
