@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from reneus_mi.capture import command, settings
+from reneus_mi.capture import __main__ as capture_command, settings
 from reneus_mi.capture.simulate import Rig, distort_image
 from reneus_mi.data import load_dataset
 from reneus_mi.data.undistort import undistort
@@ -24,7 +24,7 @@ def shot(simulated_capture):
 def made(shot, tmp_path_factory):
     """The capture command run on the photographs alone (the settings from capture.json)."""
     out = tmp_path_factory.mktemp('capture') / 'dataset'
-    assert command.main([shot['photos'], '-o', str(out), '--quiet']) == 0
+    assert capture_command.main([shot['photos'], '-o', str(out), '--quiet']) == 0
     with open(out / 'report.json') as f:
         return {'out': out, 'report': json.load(f)}
 
@@ -288,7 +288,7 @@ def test_colmap_model_read_and_undistorted(tmp_path):
     cameras are the model's and whose images are undistorted."""
     pycolmap = pytest.importorskip('pycolmap')
     import trimesh
-    from reneus_mi.capture import colmap
+    from reneus_mi import colmap
     from reneus_mi.data.cameras import look_at
     rig, pinhole, photo = distorted_photo()
     K = rig.K()

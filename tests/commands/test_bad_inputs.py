@@ -31,7 +31,8 @@ import trimesh
 
 from reneus_mi import evaluate, extract, optimize, scene, synth
 
-from reneus_mi.capture import colmap as capture_colmap, command as capture, pipeline as capture_pipeline
+from reneus_mi import colmap as colmap_command
+from reneus_mi.capture import __main__ as capture, pipeline as capture_pipeline
 from reneus_mi.render import __main__ as render
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.utils import interrupt
@@ -755,7 +756,7 @@ def test_colmap_camera_models_refused(tmp_path, model, params, parts):
     (tmp_path / 'sparse').mkdir()
     rec.write_text(str(tmp_path / 'sparse'))
     trimesh.creation.box(extents=(1.0, 1.0, 1.0)).export(tmp_path / 'box.ply')
-    refused(capture_colmap.main, [tmp_path / 'sparse', '--images', tmp_path / 'images', '--container',
+    refused(colmap_command.main, [tmp_path / 'sparse', '--images', tmp_path / 'images', '--container',
                                   tmp_path / 'box.ply', '--ior', 1.5, '-o', tmp_path / 'out'], *parts,
             watch=[tmp_path])
 
