@@ -9,8 +9,10 @@ import argparse
 import os
 import sys
 
-from reneus_mi.data.objects import CONTAINERS, OBJECTS
-from reneus_mi.data.synth import DEFAULT_MAX_DEPTH, DEFAULT_SPP, AMBIENT, IOR, SUBSETS, make_dataset
+from reneus_mi.data.objects import OBJECTS
+from reneus_mi.config import AMBIENT, IOR
+from reneus_mi.data.synth import DEFAULT_MAX_DEPTH, DEFAULT_SPP, SUBSETS, make_dataset
+from reneus_mi.geometry.shapes import CONTAINERS
 from reneus_mi.utils import interrupt
 from reneus_mi.utils.errors import exit_on_error
 

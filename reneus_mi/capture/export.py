@@ -29,7 +29,7 @@ from reneus_mi.capture.placement import board_mesh, local_mesh
 from reneus_mi.capture.settings import CaptureSettings, to_json
 from reneus_mi.data.cameras import OPENGL_FROM_OPENCV
 from reneus_mi.data.images import write_image
-from reneus_mi.data.synth import write_container
+from reneus_mi.geometry.shapes import write_container
 from reneus_mi.utils.io import atomic_write_text
 
 #: Names the command writes into the dataset folder (a rerun after a refusal may replace them).

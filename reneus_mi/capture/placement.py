@@ -4,7 +4,7 @@ A container's own frame has the centre of its footprint at the origin, its W sid
 its D side along y and its height along -z (the board's z points into the table), so that
 it stands on z = 0. Its place on the board is ``(x, y, yaw)``: the footprint's centre in
 millimetres and the angle in degrees from the board's x axis to the container's W side,
-about the board's z. The shapes are those :func:`reneus_mi.data.objects.container_mesh` makes
+about the board's z. The shapes are those :func:`reneus_mi.geometry.shapes.container_mesh` makes
 (box, rounded block, cylinder jar), scaled so that their outer size is the measured one.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from reneus_mi.data.objects import ROUNDING, container_mesh
+from reneus_mi.geometry.shapes import ROUNDING, container_mesh
 
 
 def _inner_half(shape: str, size) -> np.ndarray:

@@ -17,14 +17,13 @@ import math
 import os
 import typing
 
+from reneus_mi.geometry.shapes import CONTAINERS
 from reneus_mi.utils.cli import field_docs
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import load_json
 
 #: The capture file looked for beside the photographs.
 CAPTURE_FILE = 'capture.json'
-#: Container shapes a capture can state (those of :data:`reneus_mi.data.objects.CONTAINERS`).
-SHAPES = ('box', 'rounded', 'cylinder')
 
 
 @dataclasses.dataclass
@@ -62,8 +61,8 @@ class CaptureSettings:
                                   f"or '{name}' in {CAPTURE_FILE}")
         if self.board != 'charuco':
             raise ReneusError(f"{where}: board={self.board!r}; expected 'charuco'")
-        if self.container not in SHAPES:
-            raise ReneusError(f"{where}: container={self.container!r}; expected one of {', '.join(SHAPES)}")
+        if self.container not in CONTAINERS:
+            raise ReneusError(f"{where}: container={self.container!r}; expected one of {', '.join(CONTAINERS)}")
         columns, rows = self.squares
         if min(columns, rows) < 3:
             raise ReneusError(f"{where}: squares={columns}x{rows}; expected at least 3x3 squares")

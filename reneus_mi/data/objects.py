@@ -12,7 +12,7 @@ turns them into linear albedo. The catalogue (:data:`OBJECTS`):
 - ``sphere``: a patterned sphere, for tests.
 
 Shapes built from blended primitives are signed distance functions written in
-Dr.Jit and meshed with :func:`reneus_mi.geometry.surface.extract_mesh` (Marching Cubes), so
+Dr.Jit and meshed with :func:`reneus_mi.geometry.shapes.mesh_sdf` (Marching Cubes), so
 that overlapping parts become one clean, watertight surface.
 
 :func:`normalize` centres an object, fits the glass box around it with a margin
@@ -28,9 +28,8 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.fields.base import Field
 from reneus_mi.geometry.mesh import load_mesh
-from reneus_mi.geometry.surface import extract_mesh
+from reneus_mi.geometry.shapes import container_mesh, mesh_sdf, round_cylinder
 from reneus_mi.utils.errors import ReneusError
 
 
@@ -49,41 +48,11 @@ def _capsule(p, a, b, radius):
     return dr.norm(pa - ba * h) - radius
 
 
-def _round_cylinder(p, center, radius, half_height, rounding):
-    """Vertical cylinder (axis z) with edges rounded by ``rounding``."""
-    q = p - mi.Vector3f(*center)
-    dx = dr.sqrt(q.x * q.x + q.y * q.y) - radius + rounding
-    dz = dr.abs(q.z) - half_height + rounding
-    outside = dr.sqrt(dr.square(dr.maximum(dx, 0.0)) + dr.square(dr.maximum(dz, 0.0)))
-    return outside + dr.minimum(dr.maximum(dx, dz), 0.0) - rounding
-
-
 def _smooth_union(a, b, k):
     """Polynomial smooth minimum: blends the parts over a width ``k`` instead
     of leaving a crease where they meet."""
     h = dr.clip(0.5 + 0.5 * (b - a) / k, 0.0, 1.0)
     return dr.lerp(b, a, h) - k * h * (1.0 - h)
-
-
-class _ProceduralSDF(Field):
-    """A :class:`Field` whose SDF is a Python function of a Dr.Jit point, so that
-    the project's Marching Cubes (:func:`extract_mesh`) meshes it."""
-
-    def __init__(self, distance):
-        self._distance = distance
-
-    def geometry(self, x):
-        return self._distance(mi.Vector3f(x)), []
-
-
-def _mesh_sdf(distance, lo, hi, pitch: float) -> trimesh.Trimesh:
-    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-    resolution = np.ceil((hi - lo) / pitch).astype(np.int64) + 1
-    with dr.suspend_grad():
-        mesh = extract_mesh(_ProceduralSDF(distance), lo, hi, resolution)
-    # Marching Cubes emits duplicate vertices at grid edges shared by cells.
-    mesh.merge_vertices()
-    return mesh
 
 
 # ------------------------------------------------------------------ textures
@@ -142,7 +111,7 @@ def _insect_distance(p):
 
 def insect() -> trimesh.Trimesh:
     """Body along +x (head forward), six legs reaching below it, two antennae."""
-    mesh = _mesh_sdf(_insect_distance, (-0.80, -0.66, -0.32), (0.86, 0.66, 0.38), pitch=0.006)
+    mesh = mesh_sdf(_insect_distance, (-0.80, -0.66, -0.32), (0.86, 0.66, 0.38), pitch=0.006)
     # Bands across the body axis, like a wasp's, also on legs and antennae.
     t = 0.5 + 0.5 * np.sin(2.0 * np.pi * mesh.vertices[:, 0] / 0.16)
     mesh.visual.vertex_colors = _two_tone(t, (70, 40, 20), (230, 170, 40))
@@ -150,7 +119,7 @@ def insect() -> trimesh.Trimesh:
 
 
 def _statuette_distance(p):
-    d = _round_cylinder(p, (0.0, 0.0, -0.56), 0.30, 0.06, 0.025)               # base
+    d = round_cylinder(p, (0.0, 0.0, -0.56), 0.30, 0.06, 0.025)               # base
     for center, radius in (((0.0, 0.0, -0.32), 0.17),                         # hips
                            ((0.0, 0.0, -0.08), 0.19),                         # waist
                            ((0.0, 0.02, 0.12), 0.17),                         # chest
@@ -165,7 +134,7 @@ def _statuette_distance(p):
 
 def statuette() -> trimesh.Trimesh:
     """A smooth figure on a round base, in one colour (no texture to match)."""
-    mesh = _mesh_sdf(_statuette_distance, (-0.36, -0.36, -0.66), (0.40, 0.36, 0.56), pitch=0.01)
+    mesh = mesh_sdf(_statuette_distance, (-0.36, -0.36, -0.66), (0.40, 0.36, 0.56), pitch=0.01)
     mesh.visual.vertex_colors = _two_tone(np.zeros(len(mesh.vertices)), (205, 195, 180), (0, 0, 0))
     return mesh
 
@@ -230,60 +199,11 @@ def load_object(name_or_path: str | os.PathLike) -> trimesh.Trimesh:
     return mesh
 
 
-#: Container shapes of the generator: a glass block, a block with rounded edges, a cylinder jar.
-CONTAINERS = ('box', 'rounded', 'cylinder')
-#: Edge radius of the rounded block and the jar's rims, as a fraction of the smallest half-extent.
-ROUNDING = 0.3
-#: Marching-cubes cells across the smooth containers' largest extent.
-CONTAINER_CELLS = 96
-
-
-def _round_box(p, half, rounding):
-    q = dr.abs(p) - mi.Vector3f(*(float(h - rounding) for h in half))
-    outside = dr.norm(dr.maximum(q, 0.0))
-    return outside + dr.minimum(dr.maximum(dr.maximum(q.x, q.y), q.z), 0.0) - rounding
-
-
-def container_mesh(kind: str, half) -> trimesh.Trimesh:
-    """A closed container about the origin around the box of half-extents ``half``.
-
-    ``box`` is that box (flat faces); ``rounded`` the box with edges and corners
-    rounded; ``cylinder`` the vertical (z) jar through the box's corners, its rims
-    rounded. The smooth ones carry exact vertex normals (``vertex_normals``, from
-    their SDF), which the renderers use as shading normals.
-    """
-    half = np.asarray(half, np.float64)
-    if kind == 'box':
-        return trimesh.creation.box(extents=2.0 * half)
-    if kind not in CONTAINERS:
-        raise ReneusError(f"container={kind!r}: expected one of {', '.join(CONTAINERS)}")
-    r = ROUNDING * half.min()
-    if kind == 'rounded':
-        # Rounding cuts into the box: grow it so the object's corners stay inside.
-        outer = half + r * (1.0 - 1.0 / np.sqrt(3.0))
-        def distance(p): return _round_box(p, outer, float(r))
-    else:
-        outer = np.array([np.hypot(half[0], half[1])] * 2 + [half[2] + r])
-        def distance(p): return _round_cylinder(p, (0.0, 0.0, 0.0), float(outer[0]), float(outer[2]), float(r))
-    pitch = 2.0 * outer.max() / CONTAINER_CELLS
-    mesh = _mesh_sdf(distance, -outer - 2 * pitch, outer + 2 * pitch, pitch)
-    # Exact normals: the SDF's gradient (central differences) at the vertices.
-    v = np.asarray(mesh.vertices, np.float64)
-    h = 1e-3 * outer.max()
-
-    def at(points):
-        return np.asarray(distance(mi.Vector3f(*(mi.Float(np.ascontiguousarray(c, np.float32))
-                                                 for c in points.T))), np.float64)
-    grad = np.stack([at(v + h * e) - at(v - h * e) for e in np.eye(3)], axis=1) / (2 * h)
-    mesh.vertex_normals = grad / np.linalg.norm(grad, axis=1, keepdims=True)
-    return mesh
-
-
 def normalize(mesh: trimesh.Trimesh, margin: float = 0.15, radius: float = 0.95,
               container: str = 'box') -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
     """Centre ``mesh``, fit a container around it and scale both into a sphere.
 
-    The container (:func:`container_mesh`) is fitted to the object's bounding
+    The container (:func:`~reneus_mi.geometry.shapes.container_mesh`) is fitted to the object's bounding
     box grown on every side by ``margin`` times the object's largest
     half-extent (so a flat object still sits in a thick slab of glass); its
     farthest point then lies on the sphere of ``radius`` (< 1: everything inside

@@ -40,9 +40,10 @@ from reneus_mi.data.masks import container_masks
 from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 from reneus_mi.geometry.container import container_shape, shading_mesh
+from reneus_mi.geometry.shapes import write_container
 from reneus_mi.utils import guards, limits
 from reneus_mi.utils.errors import ReneusError
-from reneus_mi.utils.io import atomic_folder, atomic_mitsuba_write, atomic_path, atomic_write_text
+from reneus_mi.utils.io import atomic_folder, atomic_mitsuba_write, atomic_write_text
 
 #: Distance of the cameras from the origin.
 CAMERA_DISTANCE = 5.0
@@ -154,18 +155,6 @@ def write_object(mesh: trimesh.Trimesh, path: str) -> None:
     shape.recompute_vertex_normals()
     shape.add_attribute('vertex_color', 3, mi.Float(albedo.astype(np.float32).ravel()))
     atomic_mitsuba_write(path, shape.write_ply)
-
-
-def write_container(container: trimesh.Trimesh, path: str, normals: bool) -> None:
-    """Write the container as most tools write one: shared vertices, and its vertex
-    normals where it has exact ones (the smooth containers); a box carries none (the
-    crease rule of :mod:`reneus_mi.geometry.container` keeps its faces flat)."""
-    data = trimesh.exchange.ply.export_ply(container, vertex_normal=normals)
-    with atomic_path(path) as tmp, open(tmp, 'wb') as f:
-        f.write(data)
-    if normals and not np.allclose(trimesh.load(path, process=False).vertex_normals,
-                                   container.vertex_normals, atol=1e-5):
-        raise ReneusError(f'{path}: the vertex normals did not survive writing')
 
 
 def _noise(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:

@@ -8,8 +8,7 @@ import pytest
 import trimesh
 
 from reference import AMBIENT, path_reference, path_scene, pixel_rays, reneus_pixels, reneus_scene
-from reneus_mi.data.objects import container_mesh
-from reneus_mi.data.synth import write_container
+from reneus_mi.geometry.shapes import container_mesh, write_container
 from reneus_mi.render.surroundings import ContainerPose, Light, fibonacci_directions, sh_basis
 
 
