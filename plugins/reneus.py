@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.config import ModelConfig
+from reneus_mi.config import ModelConfig, RefineConfig
 from reneus_mi.fields import Field
 from reneus_mi.geometry.container import interpolated_normal
 from reneus_mi.render.frame import FieldFrame
@@ -116,11 +116,6 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
        - Container faces that meet at more than this angle (degrees) are not smoothed
          together: a box refracts through flat faces even when written with 8 shared
          vertices. (Default: 30, like Blender's auto-smooth)
-     * - light, container_pose
-       - |string|, |bool|
-       - The light outside: the scene's ``emitter``, or a refinable
-         ``ambient`` RGB or ``sh`` (order 2) started from it; a refinable pose
-         and per-axis scale of the container (:mod:`reneus_mi.render.surroundings`).
      * - n_coarse, n_fine, n_upsample_steps, upsample_s, occupancy_*
        - |int|, |int|, |int|, |float|, ...
        - Samples per inside segment and the occupancy grid that skips empty space
@@ -149,8 +144,9 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     params=params)`` differentiates with respect to them, and after training
     ``mi.traverse`` shows the trained values. Once the integrator has seen its
     scene (:meth:`bind`, or a first render) the container's IOR
-    ``container.eta``, its pose (``container_pose``) and the light (``light``
-    other than ``emitter``) appear beside them (:mod:`reneus_mi.render.surroundings`).
+    ``container.eta`` appears beside them, and the container's pose and the light
+    where the integrator is told to refine them (:meth:`configure` with a
+    :class:`~reneus_mi.config.RefineConfig`; :mod:`reneus_mi.render.surroundings`).
     """
 
     def __init__(self, props: mi.Properties):
@@ -159,17 +155,20 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         props = read_properties(props)
         self.preset, self.frame, self.dataset = props.preset, props.frame, props.dataset
         self.state = StepState()
-        self.model, self.field, self._bound = None, None, None
+        self.model, self.field, self.refine, self._bound = None, None, RefineConfig(), None
         self.configure(props.model, props.field)
 
-    def configure(self, model: ModelConfig | None = None, field: Field | None = None) -> None:
-        """Render with ``model`` (default: the current one) and ``field``.
+    def configure(self, model: ModelConfig | None = None, field: Field | None = None,
+                  refine: RefineConfig | None = None) -> None:
+        """Render with ``model`` (default: the current one) and ``field``; the surroundings'
+        parameters that ``refine`` fits (default: the current ones) are made.
 
         Without ``field`` the current field is kept where ``model.field`` is its configuration,
         and a fresh one built from ``model.field`` otherwise; a given field (e.g. a trained one,
         :func:`~reneus_mi.fields.load_field`) sets ``model.field`` to its own configuration.
         """
         model = model or self.model
+        self.refine = refine or self.refine
         if field is not None:
             model = dataclasses.replace(model, field=field.Config(**field.config()))
         elif self.model is not None and model.field == self.model.field:
@@ -177,7 +176,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         self.model = model
         self.field = field if field is not None else model.field.setup()
         self.sampler = model.sampler.setup()
-        # The surroundings follow the model's light and pose settings: built anew at the next bind.
+        # The surroundings follow the model and what is refined: built anew at the next bind.
         self._bound = None
 
     # ------------------------------------------------------------ Mitsuba API
@@ -427,7 +426,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         key = (*scene.shapes(), scene.environment())
         if self._bound is None or len(self._bound[0]) != len(key) or \
                 any(a is not b for a, b in zip(self._bound[0], key)):
-            self._bound = (key, surroundings_of(scene, self.model.render))
+            self._bound = (key, surroundings_of(scene, self.model.render, self.refine))
         return self._bound[1]
 
     def frame_of(self, scene: mi.Scene) -> FieldFrame:

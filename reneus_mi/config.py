@@ -66,13 +66,6 @@ class RenderConfig:
     cheaper estimate of the paper's deterministic tree (0: the paper's tree, every branch)."""
     aovs: bool = False
     """Append the AOV channels mask, sparsity, nx, ny, nz to rendered images."""
-    light: str = 'emitter'
-    """The light outside the container: 'emitter' (the scene's environment emitter as given),
-    'ambient' (one RGB radiance, a parameter: light.radiance) or 'sh' (spherical harmonics up to
-    order 2: light.sh); the last two start from the scene's emitter."""
-    container_pose: bool = False
-    """Give the container a pose and per-axis scale (container.translation, .rotation,
-    .log_scale), starting at the scene's placement."""
     board_texels: int = 256
     """Texels along the longer side of the grid of gains fitted on the backdrop's emission
     (:class:`~reneus_mi.render.surroundings.BoardShading`: the light the container and the
@@ -86,7 +79,6 @@ class RenderConfig:
     def __post_init__(self):
         check_choice(self, 'mode', MODES)
         check_choice(self, 'terminal', TERMINALS)
-        check_choice(self, 'light', LIGHTS)
         check_numbers(self, at_least_zero=('max_depth', 'rr_threshold', 'board_texels'), positive=('gamma',))
         if not 0.0 <= self.crease_angle <= 180.0:
             raise ReneusError(f'crease_angle={self.crease_angle}: expected degrees in [0, 180]')
@@ -108,7 +100,9 @@ class ModelConfig:
 class RefineConfig:
     """Beyond the paper, which takes the container and the light as known: what is refined with
     the field. Each quantity is a parameter group of its own (its learning rate follows the
-    field's schedule) that starts moving after ``after`` steps."""
+    field's schedule) that starts moving after ``after`` steps. The integrator is told what is
+    refined (``configure(refine=...)``): the pose and the light are then its parameters, starting
+    where the scene puts the container and from the scene's emitter."""
 
     ior: bool = False
     """Refine the container's IOR with the field."""
@@ -117,16 +111,18 @@ class RefineConfig:
     ior_range: tuple[float, float] = (1.05, 2.5)
     """Bounds of the refined IOR."""
     pose: bool = False
-    """Refine the container's position, rotation and per-axis scale with the field; the refined
-    container is written as container_refined.ply."""
+    """Refine the container's position, rotation and per-axis scale with the field
+    (container.translation, .rotation, .log_scale); the refined container is written as
+    container_refined.ply."""
     pose_learning_rate: float = 1e-3
     """Peak learning rate of the pose (world units, radians, log-scale)."""
     silhouette_weight: float = 0.01
     """Weight of the container's silhouette against masks segmented from the photographs, per
     pixel of distance, while the pose is refined (0: refraction alone moves it)."""
     light: str = 'none'
-    """Refine the light outside the container: 'none', 'ambient' (one RGB radiance) or 'sh'
-    (spherical harmonics up to order 2, for rooms that are not uniform)."""
+    """Refine the light outside the container: 'none' (the scene's emitter as given), 'ambient'
+    (one RGB radiance: light.radiance) or 'sh' (spherical harmonics up to order 2, for rooms
+    that are not uniform: light.sh)."""
     light_learning_rate: float = 5e-3
     """Peak learning rate of the light."""
     after: int = 100
@@ -144,6 +140,10 @@ class RefineConfig:
     def any(self) -> bool:
         """Whether anything besides the field is refined."""
         return self.ior or self.pose or self.light != 'none'
+
+    def light_model(self) -> str:
+        """The light as the integrator models it (one of :data:`~reneus_mi.render.surroundings.LIGHTS`)."""
+        return 'emitter' if self.light == 'none' else self.light
 
 
 @dataclass
@@ -234,16 +234,12 @@ class ReconstructionConfig:
     train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
     """How it is fitted."""
 
+    def __post_init__(self):
+        if self.train.refine.any() and self.model.render.mode == 'neus':
+            raise ReneusError('train.refine (ior, pose, light) needs a container: mode is neus')
+
 
 # --------------------------------------------------------- dicts and JSON
-#: Settings that moved, by their old path: a config.json of an older run names them.
-MOVED = {f'train.{old}': f'train.refine.{new}' for old, new in (
-    ('refine_ior', 'ior'), ('ior_learning_rate', 'ior_learning_rate'), ('ior_range', 'ior_range'),
-    ('refine_pose', 'pose'), ('pose_learning_rate', 'pose_learning_rate'),
-    ('silhouette_weight', 'silhouette_weight'), ('refine_light', 'light'),
-    ('light_learning_rate', 'light_learning_rate'), ('refine_after', 'after'))}
-
-
 def to_dict(cfg) -> dict:
     """Nested plain dict of a config (a field config records its ``kind``)."""
     out = {}
@@ -271,9 +267,6 @@ def from_dict(cls, values: dict, where: str = ''):
         if key == 'kind' and getattr(cls, 'kind', None):
             continue
         if key not in known:
-            if path in MOVED:
-                raise ReneusError(f'{path}: now {MOVED[path]}; the file was written by an older '
-                                  'reneus-mi: start the run anew (or rename the key)')
             raise ReneusError(f"{path}: unknown setting; expected one of {', '.join(known)}")
         kind = hints[key]
         if kind is FieldConfig or (isinstance(kind, type) and dataclasses.is_dataclass(kind)):

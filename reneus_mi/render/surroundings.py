@@ -333,22 +333,16 @@ class Surroundings:
         return [ParamGroup('board', (BoardShading.NAME,), learning_rate * SHADING_LR_SCALE)]
 
     def param_groups(self, refine) -> list[ParamGroup]:
-        """The groups that ``refine`` (a :class:`~reneus_mi.config.RefineConfig`) asks for: the
-        IOR (within its range), the pose, the light; each at its own rate from ``refine.after``."""
+        """The groups that ``refine`` (a :class:`~reneus_mi.config.RefineConfig`, the one these
+        surroundings were built with) asks for: the IOR (within its range), the pose, the light;
+        each at its own rate from ``refine.after``."""
         groups = []
         if refine.ior:
             groups.append(ParamGroup('ior', ('container.eta',), refine.ior_learning_rate, refine.after,
                                      tuple(refine.ior_range)))
-        if refine.pose:
-            if self.pose is None:
-                raise ReneusError('refine.pose: the integrator has no container pose; expected '
-                                  'render.container_pose = true')
+        if self.pose is not None:
             groups.append(ParamGroup('pose', tuple(self.pose.params()), refine.pose_learning_rate, refine.after))
-        if refine.light != 'none':
-            if self.light is None or self.light.kind != refine.light:
-                raise ReneusError(f'refine.light={refine.light!r}: the integrator\'s light is '
-                                  f"{self.light.kind if self.light else 'emitter'!r}; expected render.light "
-                                  f'= {refine.light!r}')
+        if self.light is not None:
             groups.append(ParamGroup('light', (self.light.name,), refine.light_learning_rate, refine.after))
         return groups
 
@@ -401,16 +395,17 @@ def shapes_bbox(shapes: list) -> mi.ScalarBoundingBox3f:
     return bbox
 
 
-def surroundings_of(scene: mi.Scene, render) -> 'Surroundings':
+def surroundings_of(scene: mi.Scene, render, refine) -> 'Surroundings':
     """The container, light and backdrop of ``scene`` as ``render`` (a
-    :class:`~reneus_mi.config.RenderConfig`) models them, checked: every shape a smooth
-    dielectric of one IOR or an area emitter."""
+    :class:`~reneus_mi.config.RenderConfig`) models them, with the parameters that ``refine`` (a
+    :class:`~reneus_mi.config.RefineConfig`) fits (the pose, the light), checked: every shape a
+    smooth dielectric of one IOR or an area emitter."""
     shapes, backdrop, other = scene_parts(scene)
     if scene.environment() is None:
         raise ReneusError("reneus integrator: the scene has no environment emitter; expected "
                           "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
     if render.mode == 'neus':
-        return Surroundings(1.0, shapes, scene.environment(), backdrop=backdrop, light=render.light,
+        return Surroundings(1.0, shapes, scene.environment(), backdrop=backdrop, light=refine.light_model(),
                             board_texels=render.board_texels)
     for shape in other:
         bsdf = shape.bsdf()
@@ -429,10 +424,10 @@ def surroundings_of(scene: mi.Scene, render) -> 'Surroundings':
             raise ReneusError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
                               f'container shape has {eta}; expected one IOR')
         eta = value
-    if render.container_pose and not all(isinstance(sh, mi.Mesh) for sh in shapes):
-        raise ReneusError('reneus integrator: container_pose needs the container as triangle meshes '
+    if refine.pose and not all(isinstance(sh, mi.Mesh) for sh in shapes):
+        raise ReneusError('reneus integrator: refine.pose needs the container as triangle meshes '
                           '(ply, obj); the scene has another kind of shape')
     bbox = shapes_bbox(shapes)
-    return Surroundings(eta, shapes, scene.environment(), backdrop=backdrop, light=render.light,
-                        pose=render.container_pose, pivot=0.5 * (bbox.min + bbox.max),
+    return Surroundings(eta, shapes, scene.environment(), backdrop=backdrop, light=refine.light_model(),
+                        pose=refine.pose, pivot=0.5 * (bbox.min + bbox.max),
                         crease_angle=render.crease_angle, board_texels=render.board_texels)

@@ -204,7 +204,7 @@ def _build(spec: RunSpec, folder: RunFolder, scene: mi.Scene, *, resume: bool, m
     """The run of ``spec`` on the loaded ``scene``: its integrator set to the spec's model, the
     configuration checked, the dataset loaded (``moved``: checked to be the run's own)."""
     integrator = reneus_integrator(scene, spec.scene)
-    integrator.configure(with_refinement(spec.config).model)
+    integrator.configure(spec.config.model, refine=spec.config.train.refine)
     train = spec.config.train
     check_batch(train.batch_rays * (BUDGET_RANGE if train.sample_budget else 1), spec.config.model,
                 '--batch-rays' + (' (x8: the largest batch under --sample-budget)' if train.sample_budget else ''))
@@ -226,20 +226,6 @@ def read_spec(out: str) -> RunSpec:
     """The spec recorded in a run folder's ``config.json``."""
     folder = RunFolder(out)
     return RunSpec.from_dict(folder.read_config(), folder.config)
-
-
-def with_refinement(config: ReconstructionConfig) -> ReconstructionConfig:
-    """The configuration whose model has the parameters that its training refines: the
-    container's pose, and the light model that ``train.refine.light`` names."""
-    refine, render = config.train.refine, config.model.render
-    changes = {}
-    if refine.pose:
-        changes['model.render.container_pose'] = True
-    if refine.light != 'none':
-        changes['model.render.light'] = refine.light
-    if refine.any() and render.mode == 'neus':
-        raise ReneusError('train.refine (ior, pose, light) needs a container: mode is neus')
-    return replace(config, **changes)
 
 
 def run_many(specs: dict[str, RunSpec], root: str, *, progress: bool = False) -> dict[str, dict]:

@@ -205,7 +205,8 @@ def test_optimize_missing_scene(tmp_path):
     (['--refine-light', 'room'], ("light='room'", "'ambient'", "'sh'")),
     (['--refine-ior-range', '2', '1.2'], ('ior_range=[2.0, 1.2]', 'expected 1 < low < high')),
     (['--sample-budget', '-5'], ('sample_budget=-5',)),
-], ids=['light_model', 'ior_range', 'sample_budget'])
+    (['--refine-pose', '--set', 'model.render.mode=neus'], ('train.refine', 'needs a container', 'mode is neus')),
+], ids=['light_model', 'ior_range', 'sample_budget', 'neus'])
 def test_optimize_refinement_switches(world, tmp_path, args, expected):
     refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, *args], *expected,
             watch=[tmp_path])
@@ -360,15 +361,6 @@ def test_resume_unknown_config_key(world, run_copy):
     (run_copy / 'config.json').write_text(json.dumps(config))
     refused(optimize.main, ['-o', run_copy, '--resume', '--quiet'], 'config.json',
             "train.learning_rat: unknown setting", watch=[run_copy])
-
-
-def test_resume_config_of_an_older_version(world, run_copy):
-    """A config.json from before the refinement settings were nested under train.refine."""
-    config = json.loads((run_copy / 'config.json').read_text())
-    config['train']['refine_ior'] = config['train']['refine'].pop('ior')
-    (run_copy / 'config.json').write_text(json.dumps(config))
-    refused(optimize.main, ['-o', run_copy, '--resume', '--quiet'], 'config.json', 'train.refine_ior',
-            'now train.refine.ior', 'older reneus-mi', watch=[run_copy])
 
 
 def test_resume_truncated_checkpoint(world, run_copy):

@@ -8,6 +8,7 @@ import pytest
 import trimesh
 
 from reference import AMBIENT, path_reference, path_scene, pixel_rays, reneus_pixels, reneus_scene
+from reneus_mi.config import RefineConfig
 from reneus_mi.geometry.shapes import container_mesh, write_container
 from reneus_mi.render.surroundings import ContainerPose, Light, fibonacci_directions, sh_basis
 
@@ -69,8 +70,8 @@ def test_pose_maps_rays_and_normals_consistently():
 
 
 def _refinable_scene(res=8, **settings):
-    settings = {'container_pose': True, 'light': 'ambient', 'field_inv_s': 60.0, **settings}
-    scene = reneus_scene(res, **settings)
+    scene = reneus_scene(res, **{'field_inv_s': 60.0, **settings})
+    scene.integrator().configure(refine=RefineConfig(pose=True, light='ambient'))
     scene.integrator().bind(scene)
     return scene
 
@@ -144,8 +145,9 @@ def test_smooth_container_matches_path_tracer(rounded_block, pose):
     # Shading normals bend the light on a tessellated rounded block as in Mitsuba's
     # dielectric; flat facets (the geometric normals) would not (measured below).
     mean, _ = path_reference(path_scene(24, max_depth=3, mesh=rounded_block), 4096)
-    reneus = reneus_pixels(reneus_scene(24, mesh=rounded_block, max_depth=2, terminal='black',
-                                       container_pose=pose))
+    scene = reneus_scene(24, mesh=rounded_block, max_depth=2, terminal='black')
+    scene.integrator().configure(refine=RefineConfig(pose=pose))
+    reneus = reneus_pixels(scene)
     error = np.abs(reneus - mean).mean()
     print(f"mean |reneus - path| {error:.5f}")
     assert error < SMOOTH_TOL
