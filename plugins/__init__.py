@@ -1,4 +1,6 @@
 """Mitsuba plugins of reneus-mi, registered for the active variant."""
+import importlib
+
 import mitsuba as mi
 
 _registered: set[str] = set()
@@ -9,8 +11,7 @@ def register() -> None:
     if mi.variant() in _registered:
         return
     # A plugin module registers itself as it is imported. Its class derives from the variant's
-    # ADIntegrator: a module imported under another variant is imported again.
-    import importlib
+    # ADIntegrator: imported here, once a variant is active, and again under another variant.
     from reneus_mi.plugins import reneus
     if reneus.VARIANT != mi.variant():
         importlib.reload(reneus)

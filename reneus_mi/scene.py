@@ -17,6 +17,7 @@ import warnings
 from reneus_mi.config import with_settings
 from reneus_mi.data import load_dataset
 from reneus_mi.data.scene_xml import write_scene
+from reneus_mi.fields.hashgrid import HashGridFieldConfig
 from reneus_mi.presets import preset
 from reneus_mi.render.properties import xml_properties
 from reneus_mi.utils import guards
@@ -39,7 +40,6 @@ def footprint_settings(field, ds, changes: dict) -> dict:
     """The field's settings that follow the photographs: a hash grid's finest level at least
     the pixel footprint at the specimen (:meth:`HashGridFieldConfig.for_footprint`), unless
     ``--set`` gave it; as integrator properties."""
-    from reneus_mi.fields.hashgrid import HashGridFieldConfig
     if not isinstance(field, HashGridFieldConfig) or 'model.field.finest_resolution' in changes \
             or ds.container is None:
         return {}

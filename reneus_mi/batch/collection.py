@@ -36,6 +36,11 @@ import re
 import warnings
 from dataclasses import dataclass, field
 
+from reneus_mi.batch.batch_folder import RESERVED
+from reneus_mi.capture.settings import CAPTURE_FILE
+from reneus_mi.capture.settings import CaptureSettings
+from reneus_mi.config import with_settings
+from reneus_mi.presets import preset
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError
 
@@ -73,7 +78,6 @@ class Specimen:
 
 def kind_of(folder: str) -> str | None:
     """``dataset`` or ``capture`` for a specimen's folder, None for anything else."""
-    from reneus_mi.capture.settings import CAPTURE_FILE
     if guards.is_dataset_dir(folder):
         return 'dataset'
     if os.path.isfile(os.path.join(folder, CAPTURE_FILE)):
@@ -156,7 +160,6 @@ def _manifest_rows(path: str) -> list[tuple[str, dict]]:
 
 
 def _from_row(row: dict, where: str, base: str, preset: str, settings: list[str]) -> Specimen:
-    from reneus_mi.capture.settings import CaptureSettings
     capture_names = {f.name for f in dataclasses.fields(CaptureSettings)} - {'ior'}
     row = dict(row)
     if 'data' not in row:
@@ -194,9 +197,6 @@ def _text(value) -> str:
 
 def _checked(s: Specimen, where: str) -> Specimen:
     """``s`` once its name, preset and settings are known good (its data is its run's to check)."""
-    from reneus_mi.config import with_settings
-    from reneus_mi.presets import preset
-    from reneus_mi.batch.batch_folder import RESERVED
     if not NAME.fullmatch(s.name) or s.name in RESERVED:
         raise ReneusError(f'{where}: name {s.name!r}; expected letters, digits and . _ + - (a folder name, '
                           'not starting with a dot or _, not a summary file)')

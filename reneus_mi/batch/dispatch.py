@@ -30,7 +30,10 @@ from reneus_mi.batch import summary
 from reneus_mi.batch.batch_folder import RESERVED, BatchFolder
 from reneus_mi.batch.collection import Specimen
 from reneus_mi.batch.worker import record_death
+from reneus_mi.config import with_settings
+from reneus_mi.presets import preset
 from reneus_mi.train.run_folder import RunState
+from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.utils import guards, interrupt
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_write_text
@@ -44,7 +47,6 @@ TICK = 0.5
 def check_folder(root: str, specimens: list[Specimen]) -> BatchFolder:
     """RUNS_DIR may hold only what batches write (runs of this or an earlier collection, the
     summaries, the batch's own folder), and lie apart from every specimen's data."""
-    from reneus_mi.train.run_folder import RunFolder
     present = os.listdir(root) if os.path.isdir(root) else []
     runs = [n for n in present if os.path.isfile(RunFolder(os.path.join(root, n)).config)]
     guards.check_output_dir(root, inputs=[s.data for s in specimens],
@@ -76,8 +78,6 @@ def run_batch(specimens: list[Specimen], root: str, make_engine: Callable, *, re
 
 
 def _drive(batch, specimens, make_engine, redo, say) -> dict[str, str]:
-    from reneus_mi.config import with_settings
-    from reneus_mi.presets import preset
     atomic_write_text(batch.collection, json.dumps([s.to_dict() for s in specimens], indent=2))
     counts = {'finished': 0, 'failed': 0, 'running': 0, 'left': 0, 'busy': 0}
     todo = []

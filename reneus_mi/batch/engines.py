@@ -34,9 +34,13 @@ import sys
 import time
 from dataclasses import dataclass
 
+import drjit as dr
+
 from reneus_mi.batch.worker import EXIT_BUSY, TASK_OPTION, run_task
+from reneus_mi.train.trainer import training_bytes
 from reneus_mi.utils import interrupt
 from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.limits import MEMORY_FRACTION, physical_memory
 
 ENGINES = ('local', 'ray', 'slurm')
 DEVICES = ('auto', 'cpu', 'gpu')
@@ -69,7 +73,6 @@ class Resources:
 
 def run_memory(config) -> int:
     """Bytes one run of ``config`` (a ReconstructionConfig) needs, from its preset's batch."""
-    from reneus_mi.train.trainer import training_bytes
     model, train = config.model, config.train
     samples = model.sampler.n_coarse + model.sampler.n_fine + 1
     return 2 * training_bytes(train.batch_rays, samples, model.render.max_depth + 1) + BASE_MEMORY
@@ -97,7 +100,6 @@ def cpu_count() -> int:
 
 def local_gpus() -> list[str]:
     """The CUDA devices of this machine, as CUDA_VISIBLE_DEVICES names them (none: [])."""
-    import drjit as dr
     if not dr.has_backend(dr.JitBackend.CUDA):
         return []
     visible = os.environ.get('CUDA_VISIBLE_DEVICES')
@@ -426,7 +428,6 @@ def make_engine(name: str, configs, files_of, *, tasks: int, device: str = 'auto
         res = resources(configs, gpu=device == 'gpu', cpus=cpus or CORES_PER_RUN, minutes=minutes)
         return SlurmEngine(res, slurm_folder, partition=partition, max_parallel=max_parallel,
                            cluster=slurm_cluster)
-    from reneus_mi.utils.limits import MEMORY_FRACTION, physical_memory
     cores = cpu_count()
     gpus = local_gpus() if device in ('auto', 'gpu') else []
     if device == 'gpu' and not gpus:

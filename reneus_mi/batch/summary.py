@@ -29,6 +29,7 @@ import math
 import os
 import time
 
+from reneus_mi.train.run_folder import recent_psnr
 from reneus_mi.utils.io import atomic_write_text
 
 COLUMNS = ('name', 'state', 'reason', 'wall_s', 'iterations', 'psnr', 'chamfer', 'ior', 'translation',
@@ -40,7 +41,6 @@ _REFINED = {'ior': 'container.eta', 'translation': 'container.translation', 'rot
 
 def row(batch, specimen) -> dict:
     """The summary of one specimen, read from disk."""
-    from reneus_mi.train.run_folder import recent_psnr
     folder, files = batch.run(specimen.name), batch.specimen(specimen.name)
     state = folder.state()
     result = folder.read_result() or {}

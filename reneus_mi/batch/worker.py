@@ -19,11 +19,21 @@ then records that (:func:`record_death`).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import shutil
 import socket
 import time
 import traceback
+
+import drjit as dr
+import trimesh
+
+from reneus_mi.batch.collection import Specimen
+from reneus_mi.utils.errors import ReneusError, exit_on_error, one_line, user_message
+from reneus_mi.utils.io import atomic_write_text
+from reneus_mi.utils.variant import set_variant
 
 #: The local worker's exit status when the run is held by another process.
 EXIT_BUSY = 75
@@ -35,12 +45,10 @@ def run_task(task: dict) -> dict:
     """Run one specimen (see the module docstring); returns ``{'name', 'outcome', 'reason',
     'seconds'}``, the outcome one of finished, failed, busy (another process holds the run)
     and skipped (finished before)."""
-    import drjit as dr
-    from reneus_mi.batch.collection import Specimen
-    from reneus_mi.batch.batch_folder import BatchFolder
-    from reneus_mi.utils.errors import ReneusError
-    from reneus_mi.utils.variant import set_variant
     set_variant(task['variant'])
+    # Imported once the task's variant is set, as every import below that reaches the
+    # integrator (it is registered per variant).
+    from reneus_mi.batch.batch_folder import BatchFolder
     if task.get('threads'):
         dr.set_thread_count(int(task['threads']))
     specimen = Specimen.from_dict(task['specimen'])
@@ -65,7 +73,6 @@ def run_task(task: dict) -> dict:
 
 
 def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
-    from reneus_mi.utils.errors import ReneusError, one_line, user_message
     result = folder.read_result()
     if result is not None and 'failure' not in result and not redo:
         return 'skipped', 'finished before'
@@ -94,12 +101,10 @@ def prepare(specimen, files, folder):
     """The specimen's :class:`~reneus_mi.train.runs.Run`: a capture captured into
     ``files.dataset`` (once), the scene XML written, the preset and settings applied; from its
     checkpoint where the folder holds one."""
-    # Imported here, after run_task set the task's variant: these modules bind Mitsuba's variant.
-    import dataclasses
+    # Imported here, after run_task set the task's variant (see there).
     from reneus_mi.capture import pipeline, settings as capture_settings
     from reneus_mi.data import load_dataset
     from reneus_mi.data.scene_xml import write_scene
-    from reneus_mi.utils.errors import ReneusError
     from reneus_mi.train import runs
     os.makedirs(files.path, exist_ok=True)
     data = specimen.data
@@ -121,10 +126,9 @@ def prepare(specimen, files, folder):
 def measure(ds, mesh_path: str, files) -> dict:
     """Chamfer to the ground truth of the dataset ``ds`` (if it has one) and a preview of the
     mesh, into ``files.metrics`` and ``files.preview``; an empty mesh has neither."""
-    import trimesh
+    # Imported here, after run_task set the task's variant (see there).
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh
-    from reneus_mi.utils.io import atomic_write_text
     from reneus_mi.render.preview import render_preview
     metrics = {}
     mesh = trimesh.load(mesh_path, process=False, force='mesh')
@@ -142,7 +146,6 @@ def measure(ds, mesh_path: str, files) -> dict:
 def record_death(folder, files, reason: str, seconds: float | None, engine: str) -> bool:
     """Record that the worker of ``folder``'s run died (``reason``), unless another process
     drives the run by now; returns whether it was recorded."""
-    from reneus_mi.utils.errors import ReneusError
     lock = folder.lock()
     try:
         lock.acquire()
@@ -174,7 +177,7 @@ def _iterations(folder) -> int:
 
 def _clear(folder) -> None:
     """Start a run over: remove what a run wrote into its folder (asked for with --redo)."""
-    import shutil
+    # Imported here, after run_task set the task's variant (see there).
     from reneus_mi.train.run_folder import FILES, RunFolder
     for name in FILES:
         path = os.path.join(folder.path, name)
@@ -190,7 +193,6 @@ def _clear(folder) -> None:
 def work(task_json: str) -> int:
     """A worker process of the local pool (``python -m reneus_mi.batch`` with
     :data:`TASK_OPTION`): run the task, print its outcome as JSON; the exit status says busy."""
-    from reneus_mi.utils.errors import exit_on_error
     # A run stopped by Ctrl-C with steps to keep writes its checkpoint and raises
     # KeyboardInterrupt: the worker ends with the interrupt's status, which the pool reads as
     # interrupted (resumable), not as a worker killed by the signal.

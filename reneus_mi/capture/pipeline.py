@@ -29,6 +29,7 @@ from reneus_mi.capture import export, photos, settings as settings_mod
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.calibrate import Calibration, calibrate
 from reneus_mi.capture.exposure import measure
+from reneus_mi.capture.placement import board_mesh
 from reneus_mi.capture.register import Outline, register
 from reneus_mi.data.undistort import output_size, pinhole_K, undistort
 from reneus_mi.utils import guards
@@ -101,7 +102,6 @@ def load_views(files: dict, cal: Calibration, out_size, K_out) -> tuple[np.ndarr
 def seen_through(cal: Calibration, shape: str, size, pose):
     """``exclude`` for :func:`calibrate`: corners inside the container's projection (with the
     lens, in the photograph) or within :data:`EXCLUSION_MARGIN_PX` of it."""
-    from reneus_mi.capture.placement import board_mesh
     hull = np.asarray(board_mesh(shape, size, pose).convex_hull.vertices)
     by_name = {v.name: i for i, v in enumerate(cal.views)}
 

@@ -30,6 +30,7 @@ import trimesh
 
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.placement import board_mesh, local_mesh
+from reneus_mi.capture.placement import pose_matrix
 from reneus_mi.capture.settings import CAPTURE_FILE, CaptureSettings, to_json
 from reneus_mi.config import GAMMA
 from reneus_mi.data.cameras import look_at
@@ -172,7 +173,6 @@ def specimen_mesh(rig: Rig) -> trimesh.Trimesh:
     mesh.apply_translation(-mesh.bounds.mean(axis=0))
     mesh.apply_scale(scale)
     mesh.apply_translation([0.0, 0.0, inner.bounds.mean(axis=0)[2]])
-    from reneus_mi.capture.placement import pose_matrix
     mesh.apply_transform(pose_matrix(rig.pose))
     return mesh
 

@@ -22,9 +22,12 @@ Messages name the image file, the view and what was expected.
 """
 from __future__ import annotations
 
+import mitsuba as mi
 import numpy as np
 
 from reneus_mi.data.cameras import pixel_rays
+from reneus_mi.geometry.container import inside
+from reneus_mi.geometry.mesh import mitsuba_mesh
 from reneus_mi.utils.errors import ReneusError
 
 #: The container centre may project this far (fraction of the image size) outside the image.
@@ -61,7 +64,6 @@ def check_views(container, K: np.ndarray, c2w: np.ndarray, height: int, width: i
     where view ``v``'s mask was read ('from its alpha channel', 'from FILE'); ``name`` names
     the container in messages.
     """
-    from reneus_mi.geometry.container import inside
     vertices = np.asarray(container.vertices, dtype=np.float64)
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
@@ -106,8 +108,6 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _check_masks(container, K, c2w, height, width, files, given_masks, sources, name) -> None:
-    import mitsuba as mi
-    from reneus_mi.geometry.mesh import mitsuba_mesh
     scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container)})
     stride = max(1, int(np.ceil(np.sqrt(height * width / MASK_SAMPLES))))
     ys, xs = np.mgrid[0:height:stride, 0:width:stride]

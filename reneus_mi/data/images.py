@@ -19,6 +19,7 @@ import cv2
 import mitsuba as mi
 import numpy as np
 import OpenEXR
+from PIL import Image, UnidentifiedImageError
 
 from reneus_mi.utils import limits
 from reneus_mi.utils.errors import ReneusError
@@ -66,7 +67,6 @@ def image_size(path: str, upright: bool = True) -> tuple[int, int]:
         except Exception as e:  # the binding raises several kinds for unreadable files
             raise ReneusError(f"{path}: unreadable image ({e}); expected {READ_TYPES}") from None
         return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
-    from PIL import Image, UnidentifiedImageError
     # Pillow's guard against decompression bombs refuses large photographs outright; only the
     # header is read here, and memory is checked from it (check_images_fit).
     guard, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
@@ -93,7 +93,6 @@ def _orientation(image) -> int | None:
     if image.format == 'PNG':
         # Pillow reads a PNG's eXIf chunk through getexif() only by decoding the whole image;
         # a chunk before the pixels is in the header's info.
-        from PIL import Image
         if 'exif' not in image.info:
             return None
         exif = Image.Exif()

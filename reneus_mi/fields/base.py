@@ -44,7 +44,7 @@ class FieldConfig:
 
     def setup(self) -> 'Field':
         """The field this configuration describes, freshly initialised."""
-        from reneus_mi.fields import FIELDS
+        from reneus_mi.fields import FIELDS   # the package imports this module: a cycle
         return FIELDS[self.kind](**dataclasses.asdict(self))
 
 
@@ -135,7 +135,7 @@ class Field:
 
 def load_field(path: str | os.PathLike) -> Field:
     """Rebuild a field written by :meth:`Field.save`."""
-    from reneus_mi.fields import FIELD_KINDS
+    from reneus_mi.fields import FIELD_KINDS   # the package imports this module: a cycle
     path = os.fspath(path)
     check_npz_file(path, 'field', keys=('header',))
     try:

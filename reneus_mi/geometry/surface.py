@@ -35,9 +35,8 @@ POSTPROCESS_MODES = ('clean', 'largest', 'crop', 'none')
 #: cells) from the kept surface ...
 CLEAN_GAP = 4.0
 #: ... and components with at least this share of the largest one's area, wherever they lie
-#: (a bud whose thin stalk was lost: 2-4 % on the Blender sprig, whose floaters in ten runs
-#: of bench/quality.py were at most 0.2 %); specks under CLEAN_SPECK of it go even next to
-#: the body (a few dozen faces of noise, no part).
+#: (a part whose thin stalk was lost, not a floater: docs/constants.md); specks under
+#: CLEAN_SPECK of it go even next to the body (a few dozen faces of noise, no part).
 CLEAN_SHARE, CLEAN_SPECK = 0.01, 1e-3
 #: :func:`bridge` joins pieces whose connection stays below the field's own blur 1/s (there
 #: NeuS's density already renders a quarter of opacity and more) but never further than this

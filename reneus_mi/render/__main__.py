@@ -16,6 +16,7 @@ import numpy as np
 import mitsuba as mi
 
 from reneus_mi.data.images import WRITE_EXTENSIONS, write_image
+from reneus_mi.fields import load_field
 from reneus_mi.render.loading import check_render_size, load_scene, reneus_integrator
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError, exit_on_error, user_message
@@ -39,7 +40,6 @@ def main(argv=None) -> int:
                                  overwrite=args.overwrite, extensions=WRITE_EXTENSIONS)
         scene = load_scene(args.scene)
         if args.field:
-            from reneus_mi.fields import load_field
             integrator = reneus_integrator(scene, f'--field needs a reneus scene: {args.scene}')
             check_npz_file(args.field, 'field', keys=('header',))
             integrator.configure(field=load_field(args.field))

@@ -12,6 +12,7 @@ import os
 import mitsuba as mi
 import numpy as np
 
+from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_path
 
@@ -33,7 +34,6 @@ def render_preview(mesh_path: str, out: str, *, direction=(1.0, -1.0, 0.8), up=(
     size, spp   image side in pixels, samples per pixel
     ==========  ====================================================================
     """
-    from reneus_mi.geometry.mesh import load_mesh
     mesh = load_mesh(mesh_path)
     lo, hi = mesh.bounds
     centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 from reneus_mi.data import Dataset
 from reneus_mi.render.seeds import PIXELS, opaque_seed, step_seed
@@ -76,7 +77,6 @@ class PixelSampler:
 
 def widen(masks: np.ndarray, margin: float) -> np.ndarray:
     """Masks grown by ``margin`` times the radius of a disc of the same area, view by view."""
-    from scipy.ndimage import distance_transform_edt
     out = masks.copy()
     for v, mask in enumerate(masks):
         radius = np.sqrt(mask.sum() / np.pi)

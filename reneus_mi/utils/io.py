@@ -18,6 +18,7 @@ import shutil
 import tempfile
 import zipfile
 
+import mitsuba as mi
 import numpy as np
 
 from reneus_mi.utils import interrupt
@@ -102,7 +103,6 @@ def atomic_mitsuba_write(path: str | os.PathLike, write) -> None:
     """Write with one of Mitsuba's writers (``write(stream)``, e.g. ``bitmap.write`` or
     ``mesh.write_ply``) through a Python file: Mitsuba's file streams do not report a full
     disk, Python's do (naming ``path``)."""
-    import mitsuba as mi
     stream = mi.MemoryStream()
     write(stream)
     with atomic_open(path, 'wb') as f:

@@ -42,7 +42,7 @@ def set_variant(name: str | None = None) -> str:
     if mi.variant() != name:
         mi.set_variant(name)
     dr.set_expand_threshold(EXPAND_THRESHOLD)
-    from reneus_mi.plugins import register
+    from reneus_mi.plugins import register   # the plugins import the package: a cycle
     register()
     return name
 
