@@ -55,7 +55,12 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     NeuS volume rendering inside it.
 
     The scene's shapes with a smooth ``dielectric`` BSDF are together the
-    container, and its IOR is the BSDF's η. A mesh bends light by
+    container, and its IOR is the BSDF's η. Their ``interior`` medium, where they
+    have one (Mitsuba's ``homogeneous`` with albedo 0: amber, tinted resin), absorbs
+    along every segment inside, by Beer-Lambert's law: the field's light at distance t
+    into a segment and the light from beyond a segment of length t both arrive times
+    exp(-σ_a t), σ_a its ``sigma_t`` (RGB) times its ``scale``, as ``volpath``
+    renders it. A mesh bends light by
     shading normals that follow its geometry, however its file was written: flat
     across edges sharper than ``crease_angle``, smooth elsewhere (the file's stored
     normals where it has them; :mod:`reneus_mi.geometry.container`). The scene's
@@ -144,7 +149,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     params=params)`` differentiates with respect to them, and after training
     ``mi.traverse`` shows the trained values. Once the integrator has seen its
     scene (:meth:`bind`, or a first render) the container's IOR
-    ``container.eta`` appears beside them, and the container's pose and the light
+    ``container.eta`` appears beside them (and its medium's absorption
+    ``container.sigma_a``), and the container's pose and the light
     where the integrator is told to refine them (:meth:`configure` with a
     :class:`~reneus_mi.config.RefineConfig`; :mod:`reneus_mi.render.surroundings`).
     """
@@ -243,7 +249,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         if self.state.seed is not None:
             jitter = mi.PCG32(n, initstate=opaque_seed(self.state.seed)).next_float32()
         acc = _Accumulator(n)
-        rays = _Rays(o=mi.Point3f(ray.o), d=mi.Vector3f(ray.d), β=dr.ones(mi.Float, n),
+        rays = _Rays(o=mi.Point3f(ray.o), d=mi.Vector3f(ray.d), β=dr.ones(mi.Color3f, n),
                      camera=dr.arange(mi.UInt32, n))
         rays = rays.take(dr.compress(dr.full(mi.Bool, True, n) & active))
         if self.model.render.mode == 'neus':
@@ -281,7 +287,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                 acc.mark_container(rays.camera, hit.valid)
             leaving = hit.valid & (dr.dot(rays.d, hit.n) > 0)
             acc.add(rays.camera, rays.β * outside(rays.o, rays.d, ~hit.valid), ~hit.valid)
-            T = self._render_inside(rays, hit.t, leaving, acc, jitter)
+            T = self._render_inside(rays, hit.t, leaving, acc, jitter, surroundings.absorption())
             if plus and depth == 1:
                 # NeuS+: the light beyond the segment arrives straight, unrefracted.
                 acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, leaving), leaving)
@@ -305,11 +311,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         ray sees outside straight on, as ``ambient`` does. For a convex container no ray that
         left comes back, so this is the empty container's exact transport: what it drops is
         the field beyond the tree (its shadow on these paths)."""
-        outside = surroundings.outside
+        outside, σ = surroundings.outside, surroundings.absorption()
         # Rays that met nothing took what they see in the tree.
         alive, β = hit.valid, rays.β * T
         for bounce in range(TRACE_BOUNCES + 1):
-            stop = alive & ((bounce == TRACE_BOUNCES) | (dr.detach(β) < TRACE_CUTOFF))
+            stop = alive & ((bounce == TRACE_BOUNCES) | (_peak(dr.detach(β)) < TRACE_CUTOFF))
             acc.add(rays.camera, β * outside(hit.p, rays.d, stop), stop)
             if bounce == TRACE_BOUNCES:
                 return
@@ -323,7 +329,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             keep = dr.compress(go & (w_out < 1.0))
             if dr.width(keep) == 0:
                 return
-            β = dr.gather(mi.Float, β * (1.0 - w_out), keep)
+            β = dr.gather(mi.Color3f, β * (1.0 - w_out), keep)
             d = dr.gather(mi.Vector3f, dr.select(inside, d_r, d_t), keep)
             o = _offset(dr.gather(mi.Point3f, hit.p, keep), dr.gather(type(hit.n), hit.n, keep), d)
             rays = _Rays(o=o, d=d, β=β, camera=dr.gather(mi.UInt32, rays.camera, keep))
@@ -331,6 +337,9 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             # A ray that grazed an edge and met nothing more sees outside from where it is.
             acc.add(rays.camera, β * outside(rays.o, rays.d, ~hit.valid), ~hit.valid)
             alive = hit.valid
+            if σ is not None:
+                # The segment to a surface seen from inside crossed the medium.
+                β = dr.select(alive & (dr.dot(rays.d, hit.n) > 0.0), β * dr.exp(-σ * hit.t), β)
 
     def _intersect(self, surroundings, rays) -> '_Hit':
         """The rays' next container interface: distance, point, normals (differentiable in the pose)."""
@@ -360,12 +369,14 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         t_exit = dr.select(inside, t_far, 0.0) * self.frame.scale
         beyond = mi.Point3f(rays.o + rays.d * t_exit)
         rays.o = mi.Point3f(rays.o + rays.d * (t_near * self.frame.scale))
-        T = self._render_inside(rays, (t_far - t_near) * self.frame.scale, inside, acc, jitter)
+        T = self._render_inside(rays, (t_far - t_near) * self.frame.scale, inside, acc, jitter, None)
         acc.add(rays.camera, rays.β * T * surroundings.outside(beyond, rays.d), mi.Bool(True))
 
-    def _render_inside(self, rays, t_far, inside, acc, jitter) -> mi.Float:
-        """Volume render the rays' segments [0, t_far] where ``inside``; return T (1 elsewhere)."""
-        T = dr.ones(mi.Float, rays.size)
+    def _render_inside(self, rays, t_far, inside, acc, jitter, σ) -> mi.Color3f:
+        """Volume render the rays' segments [0, t_far] where ``inside``, in a medium of
+        absorption ``σ`` (world units; None: clear); return what reaches the segments' origins
+        of the light from beyond them, the transmittance T times exp(-σ t_far) (1 elsewhere)."""
+        T = dr.ones(mi.Color3f, rays.size)
         seg = dr.compress(inside)
         if dr.width(seg) == 0:
             return T
@@ -374,10 +385,12 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         u = None if jitter is None else dr.gather(mi.Float, jitter, s.camera)
         vr = volume_render(self.field, self.sampler, self.frame.to_field(s.o), s.d,
                            dr.zeros(mi.Float, dr.width(seg)), t / self.frame.scale, jitter=u,
-                           cos_anneal_ratio=self._cos_anneal_ratio())
+                           cos_anneal_ratio=self._cos_anneal_ratio(),
+                           sigma_a=None if σ is None else σ * self.frame.scale)
         acc.add(s.camera, s.β * vr.color, mi.Bool(True))
-        acc.add_segment(s.camera, s.β * vr.normal, 1.0 - vr.transmittance, vr.eikonal, vr.n_samples)
-        dr.scatter(T, vr.transmittance, seg)
+        acc.add_segment(s.camera, _mean(s.β) * vr.normal, 1.0 - vr.transmittance, vr.eikonal, vr.n_samples)
+        beyond = mi.Color3f(vr.transmittance) if σ is None else vr.transmittance * dr.exp(-σ * t)
+        dr.scatter(T, beyond, seg)
         return T
 
     def _roulette_seed(self, depth: int) -> int:
@@ -391,7 +404,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         if reflect:
             β_r, β_t = β * R, β * (1.0 - R)
         else:
-            β_r, β_t = dr.zeros(mi.Float, rays.size), dr.select(R < 1.0, β, 0.0)
+            β_r, β_t = dr.zeros(mi.Color3f, rays.size), dr.select(R < 1.0, β, 0.0)
         # Candidates 0..n-1 are the reflected rays, n..2n-1 the refracted ones.
         n = rays.size
         j = dr.arange(mi.UInt32, 2 * n)
@@ -399,13 +412,13 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         half = dr.opaque(mi.UInt32, n)
         refracted = j >= half
         lane = dr.select(refracted, j - half, j)
-        β_all = dr.select(refracted, dr.gather(mi.Float, β_t, lane), dr.gather(mi.Float, β_r, lane))
-        alive = dr.gather(mi.Bool, hit.valid, lane) & (dr.detach(β_all) > 0.0)
+        β_all = dr.select(refracted, dr.gather(mi.Color3f, β_t, lane), dr.gather(mi.Color3f, β_r, lane))
+        alive = dr.gather(mi.Bool, hit.valid, lane) & (_peak(dr.detach(β_all)) > 0.0)
         threshold = self.model.render.rr_threshold
         if threshold > 0.0:
             # Russian roulette: a branch of weight β < threshold survives with probability
             # β / threshold and then carries weight threshold; the tree's mean is unchanged.
-            p = dr.minimum(dr.detach(β_all) / threshold, 1.0)
+            p = dr.minimum(_peak(dr.detach(β_all)) / threshold, 1.0)
             u = mi.PCG32(2 * n, initstate=opaque_seed(self._roulette_seed(depth))).next_float32()
             alive &= u < p
             β_all = β_all / dr.select(p > 0.0, p, 1.0)
@@ -416,7 +429,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         refracted = dr.gather(mi.Bool, refracted, keep)
         d = dr.select(refracted, dr.gather(mi.Vector3f, d_t, lane), dr.gather(mi.Vector3f, d_r, lane))
         o = _offset(dr.gather(mi.Point3f, hit.p, lane), dr.gather(type(hit.n), hit.n, lane), d)
-        return _Rays(o=o, d=d, β=dr.gather(mi.Float, β_all, keep),
+        return _Rays(o=o, d=d, β=dr.gather(mi.Color3f, β_all, keep),
                      camera=dr.gather(mi.UInt32, rays.camera, lane))
 
     # ------------------------------------------------------------ the scene
@@ -441,7 +454,7 @@ class _Rays:
     """A generation of the ray tree: one lane per live ray."""
     o: mi.Point3f
     d: mi.Vector3f
-    β: mi.Float
+    β: mi.Color3f
     camera: mi.UInt32
 
     @property
@@ -450,7 +463,7 @@ class _Rays:
 
     def take(self, index: mi.UInt32) -> '_Rays':
         return _Rays(o=dr.gather(mi.Point3f, self.o, index), d=dr.gather(mi.Vector3f, self.d, index),
-                     β=dr.gather(mi.Float, self.β, index), camera=dr.gather(mi.UInt32, self.camera, index))
+                     β=dr.gather(mi.Color3f, self.β, index), camera=dr.gather(mi.UInt32, self.camera, index))
 
 
 class _Accumulator:
@@ -491,6 +504,15 @@ class _Hit:
     n: mi.Vector3f
     n_s: mi.Vector3f
     valid: mi.Bool
+
+
+def _peak(β: mi.Color3f) -> mi.Float:
+    """A branch's largest channel: what decides whether it is followed."""
+    return dr.maximum(dr.maximum(β.x, β.y), β.z)
+
+
+def _mean(β: mi.Color3f) -> mi.Float:
+    return (β.x + β.y + β.z) / 3.0
 
 
 def _offset(p: mi.Point3f, n: mi.Vector3f, d: mi.Vector3f) -> mi.Point3f:

@@ -110,6 +110,12 @@ class RefineConfig:
     """Peak learning rate of the IOR."""
     ior_range: tuple[float, float] = (1.05, 2.5)
     """Bounds of the refined IOR."""
+    absorption: bool = False
+    """Refine the absorption coefficient of the container's medium (RGB, per scene unit:
+    container.sigma_a) with the field, from the scene's medium (0 where it has none): amber,
+    tinted resin."""
+    absorption_learning_rate: float = 5e-3
+    """Peak learning rate of the absorption coefficient (per scene unit)."""
     pose: bool = False
     """Refine the container's position, rotation and per-axis scale with the field
     (container.translation, .rotation, .log_scale); the refined container is written as
@@ -130,7 +136,8 @@ class RefineConfig:
     field gives them no signal to follow)."""
 
     def __post_init__(self):
-        check_numbers(self, positive=('ior_learning_rate', 'pose_learning_rate', 'light_learning_rate'),
+        check_numbers(self, positive=('ior_learning_rate', 'absorption_learning_rate', 'pose_learning_rate',
+                                      'light_learning_rate'),
                       at_least_zero=('after', 'silhouette_weight'))
         check_choice(self, 'light', ('none',) + LIGHTS[1:])
         lo, hi = self.ior_range
@@ -139,7 +146,7 @@ class RefineConfig:
 
     def any(self) -> bool:
         """Whether anything besides the field is refined."""
-        return self.ior or self.pose or self.light != 'none'
+        return self.ior or self.absorption or self.pose or self.light != 'none'
 
     def light_model(self) -> str:
         """The light as the integrator models it (one of :data:`~reneus_mi.render.surroundings.LIGHTS`)."""
@@ -236,7 +243,7 @@ class ReconstructionConfig:
 
     def __post_init__(self):
         if self.train.refine.any() and self.model.render.mode == 'neus':
-            raise ReneusError('train.refine (ior, pose, light) needs a container: mode is neus')
+            raise ReneusError('train.refine (ior, absorption, pose, light) needs a container: mode is neus')
 
 
 # --------------------------------------------------------- dicts and JSON

@@ -19,15 +19,28 @@ BLOCK_ROTATION = mi.ScalarTransform4f().rotate([0, 1, 0], 25)
 BLOCK_HALF = (0.55, 0.45, 0.5)
 
 
-def container(ior=1.45, mesh=None, to_world=None):
+def container(ior=1.45, mesh=None, to_world=None, sigma_a=None):
     """The glass block (Mitsuba's ``cube``: flat faces, rotated and scaled), or the container
-    in the mesh file ``mesh`` (one Mitsuba reads: PLY or OBJ) placed by ``to_world``."""
+    in the mesh file ``mesh`` (one Mitsuba reads: PLY or OBJ) placed by ``to_world``; filled
+    with a medium that absorbs ``sigma_a`` (RGB per unit) where given (amber)."""
     bsdf = {'type': 'dielectric', 'int_ior': ior}
     if mesh is not None:
         from reneus_mi.geometry.container import mesh_type
         shape = {'type': mesh_type(mesh), 'filename': str(mesh), 'bsdf': bsdf}
-        return shape if to_world is None else {**shape, 'to_world': to_world}
-    return {'type': 'cube', 'to_world': BLOCK_ROTATION.scale(list(BLOCK_HALF)), 'bsdf': bsdf}
+        shape = shape if to_world is None else {**shape, 'to_world': to_world}
+    else:
+        shape = {'type': 'cube', 'to_world': BLOCK_ROTATION.scale(list(BLOCK_HALF)), 'bsdf': bsdf}
+    if sigma_a is not None:
+        shape['interior'] = absorbing_medium(sigma_a)
+    return shape
+
+
+def absorbing_medium(sigma_a):
+    """Mitsuba's ``homogeneous`` medium that only absorbs, ``sigma_a`` (RGB) per unit: an RGB
+    sigma_t is a reflectance in [0, 1], so the largest channel goes into the scale."""
+    scale = max(sigma_a)
+    return {'type': 'homogeneous', 'albedo': 0.0, 'scale': scale,
+            'sigma_t': {'type': 'rgb', 'value': [v / scale for v in sigma_a]}}
 
 
 #: The board under the block: 12 x 12 cells of white and black print (RGB, linear radiance).
@@ -57,29 +70,31 @@ def sensor(res):
             'film': {'type': 'hdrfilm', 'width': res, 'height': res, 'rfilter': {'type': 'box'}}}
 
 
-def reneus_scene(res=24, ior=1.45, mesh=None, to_world=None, with_board=False, **integrator):
+def reneus_scene(res=24, ior=1.45, mesh=None, to_world=None, with_board=False, sigma_a=None, **integrator):
     settings = {'type': 'reneus', 'gamma': 1.0, **integrator}
     if settings.setdefault('field', 'sphere') == 'sphere':
         settings = {'field_radius': SPHERE_RADIUS, 'field_color': SPHERE_COLOR,
                     'field_inv_s': 4000.0, **settings}
     return mi.load_dict({'type': 'scene', 'integrator': settings, 'sensor': sensor(res),
                          'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': AMBIENT}},
-                         'container': container(ior, mesh, to_world),
+                         'container': container(ior, mesh, to_world, sigma_a),
                          **({'board': board()} if with_board else {})})
 
 
-def path_scene(res=24, ior=1.45, max_depth=3, mesh=None, with_board=False):
+def path_scene(res=24, ior=1.45, max_depth=3, mesh=None, with_board=False, sigma_a=None):
     """The same scene for ``path``: the sphere is an emitter behind a black BSDF.
 
     Its radiance is c·η²: inside glass a path tracer scales radiance by η² at
-    each refraction, which the paper's model (and ours) folds into c.
+    each refraction, which the paper's model (and ours) folds into c. With ``sigma_a`` the
+    block holds an absorbing medium, which ``volpath`` renders.
     """
     eta = ior / 1.000277  # Mitsuba's default exterior medium is air
     c = [v * eta * eta for v in SPHERE_COLOR]
-    return mi.load_dict({'type': 'scene', 'integrator': {'type': 'path', 'max_depth': max_depth},
+    integrator = 'path' if sigma_a is None else 'volpath'
+    return mi.load_dict({'type': 'scene', 'integrator': {'type': integrator, 'max_depth': max_depth},
                          'sensor': sensor(res),
                          'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': AMBIENT}},
-                         'container': container(ior, mesh),
+                         'container': container(ior, mesh, sigma_a=sigma_a),
                          'sphere': {'type': 'sphere', 'radius': SPHERE_RADIUS,
                                     'bsdf': {'type': 'diffuse', 'reflectance': {'type': 'rgb', 'value': 0.0}},
                                     'emitter': {'type': 'area', 'radiance': {'type': 'rgb', 'value': c}}},

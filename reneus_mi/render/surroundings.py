@@ -238,13 +238,15 @@ def scene_of(shapes: list) -> mi.Scene:
 
 
 class Surroundings:
-    """The container's IOR and pose, the light and the backdrop of one scene, owned by the
-    integrator."""
+    """The container's IOR, absorption and pose, the light and the backdrop of one scene, owned
+    by the integrator."""
 
     def __init__(self, eta: float, shapes: list, emitter: mi.Emitter, *, backdrop: list = (),
                  light: str = 'emitter', pose: bool = False, pivot=(0.0, 0.0, 0.0),
-                 crease_angle: float = CREASE_ANGLE, board_texels: int = 0):
+                 crease_angle: float = CREASE_ANGLE, board_texels: int = 0, sigma_a=None):
         self.eta = mi.Float(eta)
+        #: Beer-Lambert absorption of the container's medium, RGB per scene unit (None: clear).
+        self.sigma_a = None if sigma_a is None else mi.Float(*map(float, sigma_a))
         self.shapes = shapes
         #: The container alone, and the backdrop shapes (None without): see the module docstring.
         self.container = scene_of(shapes)
@@ -299,6 +301,8 @@ class Surroundings:
     def params(self) -> dict:
         """The refinable arrays, by their ``mi.traverse`` names (under the integrator)."""
         out = {'container.eta': self.eta}
+        if self.sigma_a is not None:
+            out['container.sigma_a'] = self.sigma_a
         if self.pose is not None:
             out.update(self.pose.params())
         if self.light is not None:
@@ -306,6 +310,12 @@ class Surroundings:
         if self.shading is not None:
             out[BoardShading.NAME] = self.shading.log_gain
         return out
+
+    def absorption(self) -> mi.Color3f | None:
+        """The medium's absorption coefficient as a colour (None: a clear container)."""
+        if self.sigma_a is None:
+            return None
+        return mi.Color3f(*(dr.gather(mi.Float, self.sigma_a, i) for i in range(3)))
 
     def ambient(self, d: mi.Vector3f) -> mi.Color3f:
         """Radiance arriving from direction ``d`` outside the container (C_out)."""
@@ -340,6 +350,9 @@ class Surroundings:
         if refine.ior:
             groups.append(ParamGroup('ior', ('container.eta',), refine.ior_learning_rate, refine.after,
                                      tuple(refine.ior_range)))
+        if refine.absorption:
+            groups.append(ParamGroup('absorption', ('container.sigma_a',), refine.absorption_learning_rate,
+                                     refine.after, (0.0, float('inf'))))
         if self.pose is not None:
             groups.append(ParamGroup('pose', tuple(self.pose.params()), refine.pose_learning_rate, refine.after))
         if self.light is not None:
@@ -424,10 +437,43 @@ def surroundings_of(scene: mi.Scene, render, refine) -> 'Surroundings':
             raise ReneusError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
                               f'container shape has {eta}; expected one IOR')
         eta = value
+    sigma_a = container_absorption(shapes)
+    if sigma_a is None and refine.absorption:
+        sigma_a = (0.0, 0.0, 0.0)
     if refine.pose and not all(isinstance(sh, mi.Mesh) for sh in shapes):
         raise ReneusError('reneus integrator: refine.pose needs the container as triangle meshes '
                           '(ply, obj); the scene has another kind of shape')
     bbox = shapes_bbox(shapes)
     return Surroundings(eta, shapes, scene.environment(), backdrop=backdrop, light=refine.light_model(),
                         pose=refine.pose, pivot=0.5 * (bbox.min + bbox.max),
-                        crease_angle=render.crease_angle, board_texels=render.board_texels)
+                        crease_angle=render.crease_angle, board_texels=render.board_texels, sigma_a=sigma_a)
+
+
+def container_absorption(shapes: list) -> tuple[float, float, float] | None:
+    """The absorption coefficient (RGB, per scene unit) of the medium inside the container:
+    the shapes' ``interior`` medium, Mitsuba's ``homogeneous`` with albedo 0 (pure absorption,
+    what ``volpath`` renders), sigma_t times its scale; None where they have none. Every shape
+    must agree, and nothing may sit outside (the light reaches the container through air)."""
+    values = set()
+    for shape in shapes:
+        if shape.exterior_medium() is not None:
+            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has an exterior medium; expected "
+                              'none (the container stands in air)')
+        medium = shape.interior_medium()
+        if medium is None:
+            values.add(None)
+            continue
+        params = mi.traverse(medium)
+        if medium.class_name() != 'HomogeneousMedium' or 'sigma_t.value.value' not in params:
+            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {medium.class_name()} "
+                              'interior; expected a homogeneous medium with a constant sigma_t')
+        albedo = np.array(params['albedo.value.value'], np.float64).ravel()
+        if albedo.max() > 1e-6:
+            raise ReneusError(f"reneus integrator: shape '{shape.id()}': medium albedo "
+                              f'{albedo.round(4).tolist()}; expected 0 (the medium absorbs, it does not scatter)')
+        sigma = np.array(params['sigma_t.value.value'], np.float64).ravel() * float(params['scale'])
+        values.add(tuple(np.broadcast_to(sigma, 3).round(9).tolist()))
+    if len(values) > 1:
+        raise ReneusError('reneus integrator: the container shapes have different interior media '
+                          f"({', '.join(map(str, sorted(values, key=str)))}); expected one")
+    return values.pop() if values else None

@@ -62,7 +62,8 @@ def _check_widths(**arrays) -> int:
 
 
 def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_near: mi.Float,
-                  t_far: mi.Float, *, jitter: mi.Float | None = None, cos_anneal_ratio: float = 1.0) -> VolumeResult:
+                  t_far: mi.Float, *, jitter: mi.Float | None = None, cos_anneal_ratio: float = 1.0,
+                  sigma_a: mi.Color3f | None = None) -> VolumeResult:
     """Volume render the segments ``o + t d``, ``t ∈ [t_near, t_far]``, through ``field``.
 
     ``sampler`` places the samples (``SamplerConfig(...).setup()``). ``d`` must be
@@ -73,20 +74,23 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
     training, 1 the true cosine. A segment with ``t_far <= t_near`` contributes
     nothing (transmittance 1), so callers can mask lanes that way; so does one
     that the sampler's occupancy grid finds empty, at no field evaluation.
+    ``sigma_a`` (RGB, per unit of ``t``; None: none) is the absorption of the medium the
+    field lies in: the light of a section at ``t`` reaches ``o`` times exp(-sigma_a t)
+    (Beer-Lambert, from ``o``); the light from beyond ``t_far`` is the caller's to attenuate.
     """
     if isinstance(cos_anneal_ratio, (int, float)) and not 0.0 <= cos_anneal_ratio <= 1.0:
         raise ReneusError(f'volume_render: cos_anneal_ratio={cos_anneal_ratio!r}, expected a value in [0, 1]')
     n_rays = _check_widths(o=o, d=d, t_near=t_near, t_far=t_far, jitter=jitter)
     if n_rays == 0:
-        return _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio)
+        return _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio, sigma_a)
     segments = sampler.clip(field, o, d, t_near, t_far)
     keep = segments.index
     if keep is None:
-        return _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio)
+        return _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio, sigma_a)
     n_kept = dr.width(keep)
     r = _render(field, sampler, dr.gather(mi.Point3f, o, keep), dr.gather(mi.Vector3f, d, keep),
                 segments.t_near, segments.t_far, None if jitter is None else dr.gather(mi.Float, jitter, keep),
-                cos_anneal_ratio)
+                cos_anneal_ratio, sigma_a)
     if n_kept == n_rays:
         return r
 
@@ -113,7 +117,7 @@ def _stretch(t: mi.Float, t_near: mi.Float, t_far: mi.Float, n: int) -> mi.Float
     return dr.replace_grad(t, near + u * (far - near))
 
 
-def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio) -> VolumeResult:
+def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio, sigma_a) -> VolumeResult:
     """:func:`volume_render` of segments that all need sampling."""
     n_rays = dr.width(o)
     n = sampler.config.n_coarse + sampler.config.n_fine + 1
@@ -146,6 +150,8 @@ def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio) -> Vo
     # A section of zero length has no extent to absorb in, whatever NeuS's ε says.
     alpha = dr.select(dist > 0.0, alpha, 0.0)
     color = field.radiance(x, d_s, normal, feature)
+    if sigma_a is not None:
+        color *= dr.exp(-sigma_a * t_mid)
     eikonal = dr.square(grad_norm - 1.0)
     # One kernel for both networks: each block reduction below evaluates its
     # input, and would otherwise re-run the networks behind it.
