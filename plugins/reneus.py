@@ -293,11 +293,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                 acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, leaving), leaving)
                 return
             if depth == depth_limit:
-                if render.terminal == 'trace' and not surroundings.uniform:
+                if render.terminal == 'trace' and not surroundings.conserving:
                     self._trace_beyond(surroundings, rays, hit, T, acc)
                 elif render.terminal != 'black':
-                    # Uniform light: the empty container's transport conserves it, and what
-                    # 'trace' would gather is exactly the ambient.
+                    # The empty container conserves uniform light: what 'trace' would gather is
+                    # exactly the ambient.
                     acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, hit.valid), hit.valid)
                 return
             rays = self._interface(rays, hit, T, surroundings.eta, reflect=not plus, depth=depth)

@@ -41,6 +41,9 @@ def main(argv: list[str] | None = None) -> int:
                         help='glass around the object: a block, a block with rounded edges or a '
                              'cylinder jar (default box)')
     parser.add_argument('--ior', type=float, default=IOR, help=f'IOR of the glass (default {IOR})')
+    parser.add_argument('--absorption', type=float, nargs='+', metavar='SIGMA',
+                        help='the glass absorbs (amber, tinted resin): one coefficient or R G B, per '
+                             'unit of the scene, whose container is about 2 across (default: clear)')
     parser.add_argument('--ambient', type=float, default=AMBIENT,
                         help=f'radiance of the uniform environment (default {AMBIENT})')
     parser.add_argument('--subsets', nargs='+', choices=SUBSETS, default=list(SUBSETS),
@@ -51,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         result = make_dataset(args.object, args.out, views=args.views, res=args.res,
                               spp=args.spp, seed=args.seed, max_depth=args.max_depth,
                               subsets=args.subsets, margin=args.margin, container=args.container,
-                              ior=args.ior, ambient=args.ambient)
+                              ior=args.ior, ambient=args.ambient, absorption=args.absorption)
     print(f"wrote {os.path.abspath(args.out)}: {args.views} views at {args.res}x{args.res}, "
           f"{result['spp']} spp, max_depth {result['max_depth']}, noise (per-pixel std inside "
           f"the box, display units) {result['noise']:.4f}, {result['seconds']:.0f} s")

@@ -8,6 +8,8 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
+from reneus_mi.render.surroundings import absorbing_medium
+
 SPHERE_RADIUS = 0.3
 SPHERE_COLOR = (0.9, 0.35, 0.1)
 AMBIENT = 0.8
@@ -33,14 +35,6 @@ def container(ior=1.45, mesh=None, to_world=None, sigma_a=None):
     if sigma_a is not None:
         shape['interior'] = absorbing_medium(sigma_a)
     return shape
-
-
-def absorbing_medium(sigma_a):
-    """Mitsuba's ``homogeneous`` medium that only absorbs, ``sigma_a`` (RGB) per unit: an RGB
-    sigma_t is a reflectance in [0, 1], so the largest channel goes into the scale."""
-    scale = max(sigma_a)
-    return {'type': 'homogeneous', 'albedo': 0.0, 'scale': scale,
-            'sigma_t': {'type': 'rgb', 'value': [v / scale for v in sigma_a]}}
 
 
 #: The board under the block: 12 x 12 cells of white and black print (RGB, linear radiance).

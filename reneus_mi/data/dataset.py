@@ -12,6 +12,9 @@ neither format has a field for are stored under the same JSON keys in both:
   normalisation matrix, so that a NeuS dataset survives a round trip;
 - ``"ambient"``: the ambient light C_out measured with the photographs (linear, one number
   or RGB), which the scene writer then uses (``reneus_mi.capture`` writes it);
+- ``"absorption"``: the absorption coefficient of the container's medium (amber, tinted
+  resin), per unit of the world coordinates (one number or RGB, >= 0), which the scene
+  writer gives the container as its interior medium;
 - ``"capture"``: what ``reneus_mi.capture`` knows of the world (:mod:`reneus_mi.capture.export`):
   ``units`` and ``frame`` of the coordinates, and ``board``, the printed board the container
   stands on (:class:`PrintedBoard`), which the scene writer puts into the scene.
@@ -100,6 +103,8 @@ class Dataset:
     scale_mat: np.ndarray | None = None
     #: The ambient light C_out (linear RGB), if the dataset measured it.
     ambient: np.ndarray | None = None
+    #: Absorption coefficient of the container's medium (RGB, per world unit), if it has one.
+    absorption: np.ndarray | None = None
     #: Whether the masks were read from files (segmented photographs) rather than projected
     #: from the container mesh: only such masks say where the container really is.
     masks_measured: bool = False
@@ -232,15 +237,27 @@ def read_extras(meta: dict, root: str, where: str) -> dict:
             raise ReneusError(f"{where}: 'scale_mat' must be a 4x4 matrix, got {meta['scale_mat']!r}")
         out['scale_mat'] = scale_mat
     if meta.get('ambient') is not None:
-        ambient = np.broadcast_to(np.asarray(meta['ambient'], dtype=np.float64), (3,)) \
-            if np.size(meta['ambient']) in (1, 3) else None
-        if ambient is None or not np.all(np.isfinite(ambient)) or not np.all(ambient > 0):
-            raise ReneusError(f"{where}: 'ambient' is {meta['ambient']!r}; expected a positive radiance "
-                              "(one number or RGB)")
-        out['ambient'] = ambient.copy()
+        out['ambient'] = _rgb(meta['ambient'], lambda v: v > 0, f"{where}: 'ambient'",
+                              'a positive radiance (one number or RGB)')
+    if meta.get('absorption') is not None:
+        out['absorption'] = _rgb(meta['absorption'], lambda v: v >= 0, f"{where}: 'absorption'",
+                                 'an absorption coefficient >= 0 per world unit (one number or RGB)')
     if meta.get('capture') is not None:
         out.update(_read_capture(meta['capture'], root, f'{where}: capture'))
     return out
+
+
+def _rgb(value, ok, where: str, expected: str) -> np.ndarray:
+    """One number or three as an RGB array, each finite and ``ok``."""
+    rgb = None
+    if np.size(value) in (1, 3):
+        try:
+            rgb = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,)).copy()
+        except (TypeError, ValueError):
+            rgb = None
+    if rgb is None or not np.all(np.isfinite(rgb)) or not np.all(ok(rgb)):
+        raise ReneusError(f'{where} is {value!r}; expected {expected}')
+    return rgb
 
 
 def _read_capture(capture, root: str, where: str) -> dict:
@@ -275,6 +292,8 @@ def write_extras(ds: Dataset, out_dir: str) -> dict:
         meta['IOR'] = float(ds.ior)
     if ds.ambient is not None:
         meta['ambient'] = np.asarray(ds.ambient, np.float64).tolist()
+    if ds.absorption is not None:
+        meta['absorption'] = np.asarray(ds.absorption, np.float64).tolist()
     for key, path, stem in (('mesh_outside', ds.container, 'container'),
                             ('mesh_inside', ds.gt_mesh, 'gt_mesh')):
         if path is None:
@@ -307,8 +326,8 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
              c2w: np.ndarray, names: list[str], files: list[str], root: str, meta_file: str,
              need_container: bool, container: str | None = None, ior: float | None = None,
              gt_mesh: str | None = None, scale_mat: np.ndarray | None = None,
-             ambient: np.ndarray | None = None, board: PrintedBoard | None = None,
-             units: str | None = None, frame: str | None = None, mask_sources: list[str] | None = None) -> Dataset:
+             ambient: np.ndarray | None = None, absorption: np.ndarray | None = None,
+             board: PrintedBoard | None = None, units: str | None = None, frame: str | None = None, mask_sources: list[str] | None = None) -> Dataset:
     """Check what a reader found and build the :class:`Dataset`.
 
     ``files`` are the image paths (for messages); ``masks`` may hold None for
@@ -342,6 +361,7 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
     ds = Dataset(images=np.stack(images).astype(np.float32, copy=False), masks=np.stack(masks),
                  K=np.asarray(K, np.float64), c2w=np.asarray(c2w, np.float64), names=list(names),
                  root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat,
-                 ambient=ambient, masks_measured=not missing, board=board, units=units, frame=frame)
+                 ambient=ambient, absorption=absorption, masks_measured=not missing, board=board,
+                 units=units, frame=frame)
     ds.validate()
     return ds

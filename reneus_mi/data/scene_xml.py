@@ -34,6 +34,7 @@ from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
 from reneus_mi.data.dataset import CONTACT_GAP, Dataset
 from reneus_mi.data.images import write_image
 from reneus_mi.geometry.container import load_container, mesh_type, mitsuba_reads
+from reneus_mi.render.surroundings import absorbing_medium
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_export, atomic_open
@@ -171,6 +172,12 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
         ET.SubElement(bsdf, 'float', name='int_ior', value=_num(ior))
         # The paper's outside medium is air with an index of exactly 1.
         ET.SubElement(bsdf, 'float', name='ext_ior', value='1.0')
+        if ds.absorption is not None:
+            medium = absorbing_medium(ds.absorption)
+            element = ET.SubElement(shape, 'medium', type=medium['type'], name='interior')
+            for name in ('albedo', 'scale'):
+                ET.SubElement(element, 'float', name=name, value=_num(medium[name]))
+            ET.SubElement(element, 'rgb', name='sigma_t', value=', '.join(map(_num, medium['sigma_t']['value'])))
 
     if board is not None:
         shape = ET.SubElement(scene, 'shape', type='rectangle', id='board')

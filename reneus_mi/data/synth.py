@@ -41,6 +41,7 @@ from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 from reneus_mi.geometry.container import container_shape, shading_mesh
 from reneus_mi.geometry.shapes import write_container
+from reneus_mi.render.surroundings import absorbing_medium
 from reneus_mi.utils import guards, limits
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_folder, atomic_mitsuba_write, atomic_write_text
@@ -100,16 +101,19 @@ def _sensor(K: np.ndarray, c2w: np.ndarray, res: int) -> mi.Sensor:
 
 
 def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_DEPTH, *,
-               ior: float = IOR, ambient: float = AMBIENT) -> dict:
+               ior: float = IOR, ambient: float = AMBIENT, absorption=None) -> dict:
     """The Mitsuba scene: object (diffuse, vertex-colour albedo), glass container, environment.
 
     The container bends light by the normals the ``reneus`` integrator gives its file
-    (:func:`~reneus_mi.geometry.container.shading_mesh`): flat faces stay flat."""
+    (:func:`~reneus_mi.geometry.container.shading_mesh`): flat faces stay flat. With
+    ``absorption`` (RGB per unit) it is filled with a medium that absorbs (amber), and
+    ``volpath`` renders it."""
     scene = {
         'type': 'scene',
         # Russian roulette off: it would add noise to exactly the long paths
         # through the glass that the dataset is about.
-        'integrator': {'type': 'path', 'max_depth': max_depth, 'rr_depth': max_depth},
+        'integrator': {'type': 'path' if absorption is None else 'volpath', 'max_depth': max_depth,
+                       'rr_depth': max_depth},
         'environment': {'type': 'constant',
                         'radiance': {'type': 'rgb', 'value': [ambient] * 3}},
         'object': {'type': 'ply', 'filename': gt_mesh,
@@ -117,7 +121,8 @@ def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_
                        'type': 'mesh_attribute', 'name': 'vertex_color'}}},
     }
     if box_mesh is not None:
-        scene['box'] = shading_mesh(box_mesh, bsdf={'type': 'dielectric', 'int_ior': ior, 'ext_ior': 1.0})
+        scene['box'] = shading_mesh(box_mesh, bsdf={'type': 'dielectric', 'int_ior': ior, 'ext_ior': 1.0},
+                                    interior=None if absorption is None else absorbing_medium(absorption))
     return scene
 
 
@@ -166,14 +171,15 @@ def _noise(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
 def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int = DEFAULT_SPP,
                  seed: int = 0, max_depth: int = DEFAULT_MAX_DEPTH, subsets=SUBSETS,
                  margin: float = 0.15, container: str = 'box', ior: float = IOR,
-                 ambient: float = AMBIENT, write: bool = True) -> dict:
+                 ambient: float = AMBIENT, absorption=None, write: bool = True) -> dict:
     """Render a synthetic dataset of ``obj`` into ``out_dir``.
 
     ``obj`` is a name of :data:`reneus_mi.data.objects.OBJECTS`, a mesh file or a
     :class:`trimesh.Trimesh` with vertex colours; it is centred and scaled with
     its container by :func:`reneus_mi.data.objects.normalize` (``margin``,
     ``container``: ``box``, ``rounded`` or ``cylinder``). The glass has IOR
-    ``ior``, the environment radiance ``ambient``. ``seed`` fixes
+    ``ior`` and absorbs ``absorption`` (RGB per unit of the normalised scene, whose
+    container is about 2 across; None: clear), the environment radiance ``ambient``. ``seed`` fixes
     the cameras and the sample streams. ``gt.ply``, ``box.ply`` and
     ``synth.json`` are always written; with ``write`` each subset is written in
     the Blender and NeuS formats with a scene XML (see the module docstring).
@@ -196,6 +202,10 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
         raise ReneusError(f"ior={ior!r}: expected a number in (1, 3]")
     if not ambient > 0:
         raise ReneusError(f"ambient={ambient!r}: expected a positive radiance")
+    if absorption is not None:
+        absorption = np.broadcast_to(np.asarray(absorption, np.float64), (3,)).copy()
+        if not np.all(np.isfinite(absorption) & (absorption >= 0)):
+            raise ReneusError(f"absorption={absorption.tolist()}: expected numbers >= 0 (per unit)")
     start = time.perf_counter()
     K, c2w = sample_cameras(views, res, seed)
     # Every check comes before the first write: a refused run leaves the
@@ -212,13 +222,15 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     # run leaves nothing behind, and the same command starts it again.
     with atomic_folder(out_dir) as work:
         rendered = _render(work, mesh, box, K, c2w, res=res, spp=spp, seed=seed, max_depth=max_depth,
-                           subsets=subsets, container=container, ior=ior, ambient=ambient)
+                           subsets=subsets, container=container, ior=ior, ambient=ambient,
+                           absorption=absorption)
         images, masks, gt_path, box_path, noise = rendered
         paths = _write_subsets(images, masks, K, c2w, gt_path, box_path, work, out_dir, ior,
-                               ambient) if write else {}
+                               ambient, absorption) if write else {}
         meta = {'object': 'trimesh' if isinstance(obj, trimesh.Trimesh) else os.fspath(obj),
                 'views': views, 'res': res, 'spp': spp, 'max_depth': max_depth, 'seed': seed,
                 'margin': margin, 'container': container, 'ior': ior, 'environment': ambient,
+                'absorption': None if absorption is None else absorption.tolist(),
                 'gamma': GAMMA, 'camera_distance': CAMERA_DISTANCE, 'noise_std_display': noise,
                 'subsets': list(subsets), 'seconds': time.perf_counter() - start,
                 'paths': {sub: {fmt: os.path.relpath(folder, out_dir) for fmt, folder in p.items()}
@@ -230,7 +242,8 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
             'seconds': meta['seconds']}
 
 
-def _render(folder, mesh, box, K, c2w, *, res, spp, seed, max_depth, subsets, container, ior, ambient):
+def _render(folder, mesh, box, K, c2w, *, res, spp, seed, max_depth, subsets, container, ior, ambient,
+            absorption):
     """Write the object and its container into ``folder`` and render every subset: the display
     images by subset, the box masks, the two mesh files and the noise of one image."""
     views = len(K)
@@ -246,7 +259,7 @@ def _render(folder, mesh, box, K, c2w, *, res, spp, seed, max_depth, subsets, co
     images, noise = {}, None
     for s, subset in enumerate(subsets):
         scene = mi.load_dict(scene_dict(gt_path, box_path if subset == 'box' else None, max_depth,
-                                        ior=ior, ambient=ambient))
+                                        ior=ior, ambient=ambient, absorption=absorption))
         first = base + s * (views + 1) * stride
         linear = [render_view(scene, K[v], c2w[v], res, spp, first + v * stride)
                   for v in tqdm(range(views), desc=f'render {subset}', unit='view', disable=None)]
@@ -257,9 +270,10 @@ def _render(folder, mesh, box, K, c2w, *, res, spp, seed, max_depth, subsets, co
     return images, masks, gt_path, box_path, noise
 
 
-def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=None,
+def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, absorption=None, offset=None,
                   scale: float | None = None) -> Dataset:
-    """``ds`` as a calibration would leave it: the container's IOR taken as ``ior``, or the
+    """``ds`` as a calibration would leave it: the container's IOR taken as ``ior``, its medium's
+    absorption as ``absorption`` (RGB per unit), or the
     container shifted by ``offset`` (a fraction of its largest extent, per axis) and scaled
     by ``scale`` about its centre (written to ``folder/container_miscalibrated.ply``). The
     photographs and masks stay the truth; refinement should find its way back to it.
@@ -272,6 +286,8 @@ def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, offset=
     out = dataclasses.replace(ds)
     if ior is not None:
         out.ior = ior
+    if absorption is not None:
+        out.absorption = np.broadcast_to(np.asarray(absorption, np.float64), (3,)).copy()
     if offset is not None or scale is not None:
         # The file moved as Mitsuba reads it, normals included: the crease rule reads the
         # copy as it read the original.
@@ -298,7 +314,7 @@ def dataset_bytes(views: int, res: int, subsets: int) -> int:
     return pixels * (subsets * (3 * 4 * 3) + 1) + res * res * (3 * 8 + 3 * 4)
 
 
-def _write_subsets(images, masks, K, c2w, gt_path, box_path, folder, out_dir, ior, ambient) -> dict:
+def _write_subsets(images, masks, K, c2w, gt_path, box_path, folder, out_dir, ior, ambient, absorption) -> dict:
     """Write every subset in both formats, plus its scene XML, into ``folder`` (which becomes
     ``out_dir``); return the subsets' folders as they will be."""
     paths = {}
@@ -309,6 +325,7 @@ def _write_subsets(images, masks, K, c2w, gt_path, box_path, folder, out_dir, io
                      names=[f'r_{i:03d}' for i in range(len(imgs))],
                      root=os.path.join(folder, subset),
                      container=box_path if with_box else None, ior=ior if with_box else None,
+                     absorption=absorption if with_box else None,
                      gt_mesh=gt_path, scale_mat=np.eye(4))
         paths[subset] = {'blender': os.path.join(out_dir, subset),
                          'neus': os.path.join(out_dir, f'{subset}_neus')}

@@ -180,7 +180,7 @@ def container_shape(path: str, bsdf: dict | None = None) -> mi.Mesh:
         return mi.load_dict(props)
     mesh = load_container(path)
     shape = mi.Mesh('container', len(mesh.vertices), len(mesh.faces),
-                    props=_bsdf_props(bsdf), has_vertex_normals=False)
+                    props=_props(bsdf, None), has_vertex_normals=False)
     params = mi.traverse(shape)
     params['vertex_positions'] = mi.Float(np.ravel(mesh.vertices).astype(np.float32))
     params['faces'] = mi.UInt32(np.ravel(mesh.faces).astype(np.uint32))
@@ -200,16 +200,18 @@ def mitsuba_reads(path: str) -> bool:
     return True
 
 
-def shading_mesh(path: str, crease_angle: float = CREASE_ANGLE, bsdf: dict | None = None) -> mi.Mesh:
+def shading_mesh(path: str, crease_angle: float = CREASE_ANGLE, bsdf: dict | None = None,
+                 interior: dict | None = None) -> mi.Mesh:
     """The container file as a Mitsuba mesh whose own vertex normals are the rule's: one
     vertex per triangle corner. Mitsuba's ``path`` integrator renders it as ``reneus``
-    sees the file (references, synthetic photographs)."""
+    sees the file (references, synthetic photographs); ``bsdf`` and ``interior`` (a medium)
+    are ``load_dict`` dicts."""
     loaded = container_shape(path)
     params = mi.traverse(loaded)
     corners = np.array(params['vertex_positions']).reshape(-1, 3)[np.array(params['faces']).reshape(-1, 3)]
     normals = np.array(shading_normals(loaded, crease_angle)).reshape(-1, 3)
     n_faces = len(corners)
-    shape = mi.Mesh('container', 3 * n_faces, n_faces, has_vertex_normals=True, props=_bsdf_props(bsdf))
+    shape = mi.Mesh('container', 3 * n_faces, n_faces, has_vertex_normals=True, props=_props(bsdf, interior))
     out = mi.traverse(shape)
     out['vertex_positions'] = mi.Float(corners.astype(np.float32).ravel())
     out['faces'] = mi.UInt32(np.arange(3 * n_faces, dtype=np.uint32))
@@ -218,11 +220,13 @@ def shading_mesh(path: str, crease_angle: float = CREASE_ANGLE, bsdf: dict | Non
     return shape
 
 
-def _bsdf_props(bsdf: dict | None) -> mi.Properties:
+def _props(bsdf: dict | None, interior: dict | None) -> mi.Properties:
     props = mi.Properties()
-    if bsdf is not None:
-        props['bsdf'] = mi.load_dict(bsdf)
+    for name, value in (('bsdf', bsdf), ('interior', interior)):
+        if value is not None:
+            props[name] = mi.load_dict(value)
     return props
+
 
 def load_container(path: str | os.PathLike) -> trimesh.Trimesh:
     """Read a container mesh and check it (:func:`check_container`)."""

@@ -262,10 +262,11 @@ class Surroundings:
             self.shading = BoardShading(board_texels, _uv_aspect(backdrop[0]))
 
     @property
-    def uniform(self) -> bool:
-        """Whether every ray leaving the container sees one radiance: no backdrop, and a constant
-        emitter or an ambient light."""
-        if self.backdrop is not None:
+    def conserving(self) -> bool:
+        """Whether the empty container brings every ray the one radiance outside: every ray
+        leaving it sees the same (no backdrop, a constant emitter or an ambient light) and its
+        medium absorbs nothing, so that a ray inside, however it is reflected, ends with it."""
+        if self.backdrop is not None or self.sigma_a is not None:
             return False
         if self.light is not None:
             return self.light.kind == 'ambient'
@@ -447,6 +448,16 @@ def surroundings_of(scene: mi.Scene, render, refine) -> 'Surroundings':
     return Surroundings(eta, shapes, scene.environment(), backdrop=backdrop, light=refine.light_model(),
                         pose=refine.pose, pivot=0.5 * (bbox.min + bbox.max),
                         crease_angle=render.crease_angle, board_texels=render.board_texels, sigma_a=sigma_a)
+
+
+def absorbing_medium(sigma_a) -> dict:
+    """Mitsuba's ``homogeneous`` medium that absorbs ``sigma_a`` (RGB per scene unit) and
+    scatters nothing, as a ``load_dict`` dict: what :func:`container_absorption` reads back. An
+    RGB sigma_t is a reflectance (at most 1 per channel), so the largest channel is the scale."""
+    sigma_a = np.broadcast_to(np.asarray(sigma_a, np.float64), (3,))
+    scale = float(sigma_a.max()) if sigma_a.max() > 0 else 1.0
+    return {'type': 'homogeneous', 'albedo': 0.0, 'scale': scale,
+            'sigma_t': {'type': 'rgb', 'value': (sigma_a / scale).tolist()}}
 
 
 def container_absorption(shapes: list) -> tuple[float, float, float] | None:

@@ -34,7 +34,7 @@ def make_dataset(folder) -> Dataset:
     return Dataset(images=rng.random((3, H, W, 3)).astype(np.float32),
                    masks=masks, K=K, c2w=c2w,
                    names=['v0.png', 'v1.png', 'v2.png'], root=str(folder),
-                   container=box, ior=1.5)
+                   container=box, ior=1.5, absorption=np.array([0.1, 0.2, 0.4]))
 
 
 @pytest.fixture(scope='module')
@@ -65,6 +65,7 @@ def test_round_trip(written, fmt):
     assert np.abs(back.images - ds.images).max() <= 0.5 / 255 + 1e-6
     assert np.array_equal(back.masks, ds.masks)
     assert back.ior == 1.5 and back.gt_mesh is None
+    assert np.array_equal(back.absorption, [0.1, 0.2, 0.4])
     assert os.path.dirname(back.container) == str(root / fmt)
     centre, radius = back.normalization()
     assert np.abs(centre).max() < 1e-6 and abs(radius - np.linalg.norm(BOX) / 2) < 1e-6
@@ -403,6 +404,15 @@ def test_ior_out_of_range(written, tmp_path, ior):
     folder = mutable(written, tmp_path, 'blender')
     _edit_json(folder / 'transforms.json', lambda m: m.update(IOR=ior))
     with pytest.raises(ValueError, match=r"transforms.json: 'IOR' is .*; expected a number in \(1, 3\]"):
+        load_dataset(str(folder))
+
+
+@pytest.mark.parametrize('absorption', [-0.1, 'amber', [1.0, 2.0], [0.1, float('nan'), 0.2]])
+def test_absorption_must_be_a_coefficient(written, tmp_path, absorption):
+    folder = mutable(written, tmp_path, 'blender')
+    _edit_json(folder / 'transforms.json', lambda m: m.update(absorption=absorption))
+    with pytest.raises(ValueError, match=r"transforms.json: 'absorption' is .*; expected an absorption "
+                                         r"coefficient >= 0 per world unit"):
         load_dataset(str(folder))
 
 

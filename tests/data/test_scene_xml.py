@@ -1,4 +1,5 @@
 """Scene writer: Mitsuba parses the XML, and its sensor casts the dataset's rays."""
+import dataclasses
 import os
 import xml.etree.ElementTree as ET
 
@@ -11,6 +12,7 @@ from reneus_mi.data import Dataset, write_dataset
 from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.data.masks import container_masks
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
+from reneus_mi.render.surroundings import container_absorption
 from reneus_mi.scene import main
 
 H, W = 12, 16
@@ -194,3 +196,17 @@ def test_container_mitsuba_cannot_read_gets_a_triangulated_copy(tmp_path, kind):
         write_scene(ds, str(tmp_path / 'scene.xml'), integrator='path')
     write_scene(ds, str(xml), integrator='path', overwrite=True)
     assert copy.is_file()
+
+
+def test_absorbing_container_is_written_as_its_interior_medium(tmp_path):
+    # The scene gives Mitsuba the medium volpath renders, and the integrator reads it back.
+    ds = dataclasses.replace(make_dataset(tmp_path), absorption=np.array([0.05, 0.2, 1.7]))
+    xml = str(tmp_path / 'scene.xml')
+    write_scene(ds, xml)
+    scene = mi.load_file(xml)
+    container = [s for s in scene.shapes() if s.id() == 'container'][0]
+    assert container.interior_medium().class_name() == 'HomogeneousMedium'
+    assert np.allclose(container_absorption([container]), [0.05, 0.2, 1.7], rtol=1e-6)
+    clear = str(tmp_path / 'clear.xml')
+    write_scene(dataclasses.replace(ds, absorption=None), clear)
+    assert container_absorption([s for s in mi.load_file(clear).shapes() if s.id() == 'container']) is None
