@@ -25,6 +25,8 @@ VARIANT = mi.variant()
 TRACE_BOUNCES = 8
 #: Weight below which ``terminal='trace'`` stops following a ray (it then sees outside straight on).
 TRACE_CUTOFF = 1e-3
+#: Offset of the random streams of ``terminal='trace'`` from those of the tree's roulette.
+TRACE_SALT = 1 << 16
 
 #: Names of the AOV channels, after R, G, B (and alpha where the film has it).
 AOV_NAMES = ('mask', 'sparsity', 'nx', 'ny', 'nz')
@@ -250,7 +252,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             jitter = mi.PCG32(n, initstate=opaque_seed(self.state.seed)).next_float32()
         acc = _Accumulator(n)
         rays = _Rays(o=mi.Point3f(ray.o), d=mi.Vector3f(ray.d), β=dr.ones(mi.Color3f, n),
-                     camera=dr.arange(mi.UInt32, n))
+                     camera=dr.arange(mi.UInt32, n), region=dr.zeros(mi.UInt32, n))
         rays = rays.take(dr.compress(dr.full(mi.Bool, True, n) & active))
         if self.model.render.mode == 'neus':
             self._trace_neus(surroundings, rays, acc, jitter)
@@ -278,7 +280,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         render = self.model.render
         plus = render.mode == 'neus_plus'
         depth_limit = 1 if plus else render.max_depth
-        outside = surroundings.outside
+        outside, field = surroundings.outside, surroundings.interfaces.field
+        σ_field = surroundings.absorption(field)
         for depth in range(depth_limit + 1):
             if rays.size == 0:
                 return
@@ -287,7 +290,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                 acc.mark_container(rays.camera, hit.valid)
             leaving = hit.valid & (dr.dot(rays.d, hit.n) > 0)
             acc.add(rays.camera, rays.β * outside(rays.o, rays.d, ~hit.valid), ~hit.valid)
-            T = self._render_inside(rays, hit.t, leaving, acc, jitter, surroundings.absorption())
+            in_field = hit.valid & (rays.region == field)
+            T = self._render_inside(rays, hit.t, in_field, acc, jitter, σ_field)
+            if surroundings.sigma_a is not None:
+                # Segments in the other regions only absorb.
+                T = dr.select(in_field, T, surroundings.attenuation(rays.region, hit.t))
             if plus and depth == 1:
                 # NeuS+: the light beyond the segment arrives straight, unrefracted.
                 acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, leaving), leaving)
@@ -300,7 +307,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                     # exactly the ambient.
                     acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, hit.valid), hit.valid)
                 return
-            rays = self._interface(rays, hit, T, surroundings.eta, reflect=not plus, depth=depth)
+            rays = self._interface(surroundings, rays, hit, T, reflect=not plus, depth=depth)
 
     def _trace_beyond(self, surroundings, rays, hit, T, acc):
         """The light beyond the tree's last segment, through the container without the field.
@@ -311,7 +318,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         ray sees outside straight on, as ``ambient`` does. For a convex container no ray that
         left comes back, so this is the empty container's exact transport: what it drops is
         the field beyond the tree (its shadow on these paths)."""
-        outside, σ = surroundings.outside, surroundings.absorption()
+        outside = surroundings.outside
         # Rays that met nothing took what they see in the tree.
         alive, β = hit.valid, rays.β * T
         for bounce in range(TRACE_BOUNCES + 1):
@@ -320,26 +327,32 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             if bounce == TRACE_BOUNCES:
                 return
             go = alive & ~stop
-            R, d_r, d_t = interface(rays.d, hit.n_s, surroundings.eta)
-            # From inside the refracted ray leaves, from outside the reflected one does.
-            inside = dr.dot(rays.d, hit.n) > 0.0
-            d_out, w_out = dr.select(inside, d_t, d_r), dr.select(inside, 1.0 - R, R)
+            R, d_r, d_t = interface(rays.d, hit.n_s, surroundings.eta(hit.group))
+            entering = dr.dot(rays.d, hit.n) < 0.0
+            region_t = surroundings.beyond(hit.group, entering)
+            # The branch that reaches the world ends there (from inside the refracted one, from
+            # outside the reflected one); at an inner interface neither does, and one of the two
+            # goes on, chosen with probability R (their weights' mean unchanged).
+            out_t, out_r = region_t == 0, rays.region == 0
+            d_out, w_out = dr.select(out_t, d_t, d_r), dr.select(out_t, 1.0 - R, dr.select(out_r, R, 0.0))
             escapes = go & (w_out > 0.0)
             acc.add(rays.camera, β * w_out * outside(_offset(hit.p, hit.n, d_out), d_out, escapes), escapes)
+            reflect = out_t | (~out_r & (self._random(rays.size, bounce + TRACE_SALT) < R))
             keep = dr.compress(go & (w_out < 1.0))
             if dr.width(keep) == 0:
                 return
             β = dr.gather(mi.Color3f, β * (1.0 - w_out), keep)
-            d = dr.gather(mi.Vector3f, dr.select(inside, d_r, d_t), keep)
+            reflect = dr.gather(mi.Bool, reflect, keep)
+            d = dr.select(reflect, dr.gather(mi.Vector3f, d_r, keep), dr.gather(mi.Vector3f, d_t, keep))
+            region = dr.select(reflect, dr.gather(mi.UInt32, rays.region, keep), dr.gather(mi.UInt32, region_t, keep))
             o = _offset(dr.gather(mi.Point3f, hit.p, keep), dr.gather(type(hit.n), hit.n, keep), d)
-            rays = _Rays(o=o, d=d, β=β, camera=dr.gather(mi.UInt32, rays.camera, keep))
+            rays = _Rays(o=o, d=d, β=β, camera=dr.gather(mi.UInt32, rays.camera, keep), region=region)
             hit = self._intersect(surroundings, rays)
             # A ray that grazed an edge and met nothing more sees outside from where it is.
             acc.add(rays.camera, β * outside(rays.o, rays.d, ~hit.valid), ~hit.valid)
             alive = hit.valid
-            if σ is not None:
-                # The segment to a surface seen from inside crossed the medium.
-                β = dr.select(alive & (dr.dot(rays.d, hit.n) > 0.0), β * dr.exp(-σ * hit.t), β)
+            if surroundings.sigma_a is not None:
+                β = dr.select(alive, β * surroundings.attenuation(rays.region, hit.t), β)
 
     def _intersect(self, surroundings, rays) -> '_Hit':
         """The rays' next container interface: distance, point, normals (differentiable in the pose)."""
@@ -348,14 +361,14 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             si = container.ray_intersect(mi.Ray3f(rays.o, rays.d))
             p = mi.Point3f(rays.o + si.t * rays.d)
             return _Hit(t=si.t, p=p, n=si.n, n_s=interpolated_normal(surroundings.normals, si, p),
-                        valid=si.is_valid())
+                        valid=si.is_valid(), group=surroundings.group(si))
         # The container as loaded, seen by the rays taken into its frame: t is the same
         # parameter along both rays when the direction keeps its length.
         o_c, d_c = pose.to_container(rays.o, rays.d)
         si = container.ray_intersect(mi.Ray3f(o_c, d_c))
         n_s = interpolated_normal(surroundings.normals, si, o_c + si.t * d_c)
         return _Hit(t=si.t, p=mi.Point3f(rays.o + si.t * rays.d), n=pose.normal_to_world(si.n),
-                    n_s=pose.normal_to_world(n_s), valid=si.is_valid())
+                    n_s=pose.normal_to_world(n_s), valid=si.is_valid(), group=surroundings.group(si))
 
     def _trace_neus(self, surroundings, rays, acc, jitter):
         # Plain NeuS: the field's unit bounding sphere, ambient beyond it.
@@ -373,9 +386,9 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         acc.add(rays.camera, rays.β * T * surroundings.outside(beyond, rays.d), mi.Bool(True))
 
     def _render_inside(self, rays, t_far, inside, acc, jitter, σ) -> mi.Color3f:
-        """Volume render the rays' segments [0, t_far] where ``inside``, in a medium of
-        absorption ``σ`` (world units; None: clear); return what reaches the segments' origins
-        of the light from beyond them, the transmittance T times exp(-σ t_far) (1 elsewhere)."""
+        """Volume render the rays' segments [0, t_far] where ``inside`` (the field's region), in
+        a medium of absorption ``σ`` (world units; None: clear); return what reaches the segments'
+        origins of the light from beyond them, the transmittance T times exp(-σ t_far) (1 elsewhere)."""
         T = dr.ones(mi.Color3f, rays.size)
         seg = dr.compress(inside)
         if dr.width(seg) == 0:
@@ -393,13 +406,17 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         dr.scatter(T, beyond, seg)
         return T
 
-    def _roulette_seed(self, depth: int) -> int:
-        return (((self.state.seed or 0) * 0x9E3779B1) ^ (depth + 1) * 0x85EBCA77) & 0xFFFFFFFFFFFFFFFF
+    def _random(self, n: int, salt: int) -> mi.Float:
+        """``n`` uniform numbers of the step's seed and ``salt``: the same for the same step."""
+        seed = (((self.state.seed or 0) * 0x9E3779B1) ^ (salt + 1) * 0x85EBCA77) & 0xFFFFFFFFFFFFFFFF
+        return mi.PCG32(n, initstate=opaque_seed(seed)).next_float32()
 
-    def _interface(self, rays, hit, T, eta, reflect: bool, depth: int = 0):
-        """Spawn the next generation: reflected (β·T·R) and refracted (β·T·(1-R)) rays."""
+    def _interface(self, surroundings, rays, hit, T, reflect: bool, depth: int = 0):
+        """Spawn the next generation: reflected (β·T·R) and refracted (β·T·(1-R)) rays, each in
+        the region it goes into."""
         # Smooth containers bend light by their shading normals, as Mitsuba's dielectric does.
-        R, d_r, d_t = interface(rays.d, hit.n_s, eta)
+        R, d_r, d_t = interface(rays.d, hit.n_s, surroundings.eta(hit.group))
+        region_t = surroundings.beyond(hit.group, dr.dot(rays.d, hit.n) < 0.0)
         β = rays.β * T
         if reflect:
             β_r, β_t = β * R, β * (1.0 - R)
@@ -419,8 +436,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             # Russian roulette: a branch of weight β < threshold survives with probability
             # β / threshold and then carries weight threshold; the tree's mean is unchanged.
             p = dr.minimum(_peak(dr.detach(β_all)) / threshold, 1.0)
-            u = mi.PCG32(2 * n, initstate=opaque_seed(self._roulette_seed(depth))).next_float32()
-            alive &= u < p
+            alive &= self._random(2 * n, depth) < p
             β_all = β_all / dr.select(p > 0.0, p, 1.0)
         keep = dr.compress(alive)
         if dr.width(keep) == 0:  # Dr.Jit 1.5 crashes on dr.select of empty arrays
@@ -429,8 +445,9 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         refracted = dr.gather(mi.Bool, refracted, keep)
         d = dr.select(refracted, dr.gather(mi.Vector3f, d_t, lane), dr.gather(mi.Vector3f, d_r, lane))
         o = _offset(dr.gather(mi.Point3f, hit.p, lane), dr.gather(type(hit.n), hit.n, lane), d)
+        region = dr.select(refracted, dr.gather(mi.UInt32, region_t, lane), dr.gather(mi.UInt32, rays.region, lane))
         return _Rays(o=o, d=d, β=dr.gather(mi.Color3f, β_all, keep),
-                     camera=dr.gather(mi.UInt32, rays.camera, lane))
+                     camera=dr.gather(mi.UInt32, rays.camera, lane), region=region)
 
     # ------------------------------------------------------------ the scene
     def bind(self, scene: mi.Scene) -> Surroundings:
@@ -456,6 +473,8 @@ class _Rays:
     d: mi.Vector3f
     β: mi.Color3f
     camera: mi.UInt32
+    region: mi.UInt32
+    """Where the ray is: 0 the world, g + 1 inside interface g (:mod:`reneus_mi.render.interfaces`)."""
 
     @property
     def size(self) -> int:
@@ -463,7 +482,8 @@ class _Rays:
 
     def take(self, index: mi.UInt32) -> '_Rays':
         return _Rays(o=dr.gather(mi.Point3f, self.o, index), d=dr.gather(mi.Vector3f, self.d, index),
-                     β=dr.gather(mi.Color3f, self.β, index), camera=dr.gather(mi.UInt32, self.camera, index))
+                     β=dr.gather(mi.Color3f, self.β, index), camera=dr.gather(mi.UInt32, self.camera, index),
+                     region=dr.gather(mi.UInt32, self.region, index))
 
 
 class _Accumulator:
@@ -504,6 +524,8 @@ class _Hit:
     n: mi.Vector3f
     n_s: mi.Vector3f
     valid: mi.Bool
+    group: mi.UInt32
+    """The interface met."""
 
 
 def _peak(β: mi.Color3f) -> mi.Float:

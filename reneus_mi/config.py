@@ -110,6 +110,9 @@ class RefineConfig:
     """Peak learning rate of the IOR."""
     ior_range: tuple[float, float] = (1.05, 2.5)
     """Bounds of the refined IOR."""
+    inner_ior: bool = False
+    """Refine the IORs inside the container's inner interfaces (a jar's liquid:
+    container.inner_ior) with the field, at the IOR's rate, within 1 and the IOR's upper bound."""
     absorption: bool = False
     """Refine the absorption coefficient of the container's medium (RGB, per scene unit:
     container.sigma_a) with the field, from the scene's medium (0 where it has none): amber,
@@ -146,7 +149,7 @@ class RefineConfig:
 
     def any(self) -> bool:
         """Whether anything besides the field is refined."""
-        return self.ior or self.absorption or self.pose or self.light != 'none'
+        return self.ior or self.inner_ior or self.absorption or self.pose or self.light != 'none'
 
     def light_model(self) -> str:
         """The light as the integrator models it (one of :data:`~reneus_mi.render.surroundings.LIGHTS`)."""

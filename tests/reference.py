@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.render.surroundings import absorbing_medium
+from reneus_mi.render.interfaces import absorbing_medium
 
 SPHERE_RADIUS = 0.3
 SPHERE_COLOR = (0.9, 0.35, 0.1)
@@ -64,31 +64,36 @@ def sensor(res):
             'film': {'type': 'hdrfilm', 'width': res, 'height': res, 'rfilter': {'type': 'box'}}}
 
 
-def reneus_scene(res=24, ior=1.45, mesh=None, to_world=None, with_board=False, sigma_a=None, **integrator):
+def reneus_scene(res=24, ior=1.45, mesh=None, to_world=None, with_board=False, sigma_a=None, shapes=None,
+                 **integrator):
+    """The reneus scene: the sphere field in the glass block (or in the container ``shapes``, a
+    dict of shapes of the scene, as :func:`path_scene` takes them)."""
     settings = {'type': 'reneus', 'gamma': 1.0, **integrator}
     if settings.setdefault('field', 'sphere') == 'sphere':
         settings = {'field_radius': SPHERE_RADIUS, 'field_color': SPHERE_COLOR,
                     'field_inv_s': 4000.0, **settings}
     return mi.load_dict({'type': 'scene', 'integrator': settings, 'sensor': sensor(res),
                          'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': AMBIENT}},
-                         'container': container(ior, mesh, to_world, sigma_a),
+                         **(shapes or {'container': container(ior, mesh, to_world, sigma_a)}),
                          **({'board': board()} if with_board else {})})
 
 
-def path_scene(res=24, ior=1.45, max_depth=3, mesh=None, with_board=False, sigma_a=None):
+def path_scene(res=24, ior=1.45, max_depth=3, mesh=None, with_board=False, sigma_a=None, shapes=None,
+               probe_ior=None, volume=False):
     """The same scene for ``path``: the sphere is an emitter behind a black BSDF.
 
     Its radiance is c·η²: inside glass a path tracer scales radiance by η² at
     each refraction, which the paper's model (and ours) folds into c. With ``sigma_a`` the
-    block holds an absorbing medium, which ``volpath`` renders.
+    block holds an absorbing medium, which ``volpath`` renders. ``shapes`` replace the block
+    (``probe_ior``: the IOR around the sphere; ``volume``: some of them hold a medium).
     """
-    eta = ior / 1.000277  # Mitsuba's default exterior medium is air
+    eta = (probe_ior or ior) / 1.000277  # Mitsuba's default exterior medium is air
     c = [v * eta * eta for v in SPHERE_COLOR]
-    integrator = 'path' if sigma_a is None else 'volpath'
+    integrator = 'volpath' if sigma_a is not None or volume else 'path'
     return mi.load_dict({'type': 'scene', 'integrator': {'type': integrator, 'max_depth': max_depth},
                          'sensor': sensor(res),
                          'env': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': AMBIENT}},
-                         'container': container(ior, mesh, sigma_a=sigma_a),
+                         **(shapes or {'container': container(ior, mesh, sigma_a=sigma_a)}),
                          'sphere': {'type': 'sphere', 'radius': SPHERE_RADIUS,
                                     'bsdf': {'type': 'diffuse', 'reflectance': {'type': 'rgb', 'value': 0.0}},
                                     'emitter': {'type': 'area', 'radiance': {'type': 'rgb', 'value': c}}},

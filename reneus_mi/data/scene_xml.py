@@ -34,7 +34,7 @@ from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
 from reneus_mi.data.dataset import CONTACT_GAP, Dataset
 from reneus_mi.data.images import write_image
 from reneus_mi.geometry.container import load_container, mesh_type, mitsuba_reads
-from reneus_mi.render.surroundings import absorbing_medium
+from reneus_mi.render.interfaces import absorbing_medium
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_export, atomic_open

@@ -41,7 +41,7 @@ from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 from reneus_mi.geometry.container import container_shape, shading_mesh
 from reneus_mi.geometry.shapes import write_container
-from reneus_mi.render.surroundings import absorbing_medium
+from reneus_mi.render.interfaces import absorbing_medium
 from reneus_mi.utils import guards, limits
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_folder, atomic_mitsuba_write, atomic_write_text

@@ -228,6 +228,13 @@ def _props(bsdf: dict | None, interior: dict | None) -> mi.Properties:
     return props
 
 
+def scene_of(shapes: list) -> mi.Scene:
+    """A Mitsuba scene of already loaded ``shapes`` (for ray queries of its own). Each keeps its
+    id: a scene names the shapes it holds by their keys, so other keys would rename them in
+    the scene they came from too (and in its ``mi.traverse``)."""
+    return mi.load_dict({'type': 'scene', **{shape.id() or f'shape_{i}': shape for i, shape in enumerate(shapes)}})
+
+
 def load_container(path: str | os.PathLike) -> trimesh.Trimesh:
     """Read a container mesh and check it (:func:`check_container`)."""
     mesh = load_mesh(path, 'container mesh')

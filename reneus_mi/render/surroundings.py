@@ -44,7 +44,8 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.geometry.container import CREASE_ANGLE, shading_normals
+from reneus_mi.geometry.container import CREASE_ANGLE, scene_of, shading_normals
+from reneus_mi.render.interfaces import Interfaces, interfaces_of
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.param_groups import ParamGroup
 
@@ -232,21 +233,25 @@ def _uv_aspect(shape) -> float:
     return float(np.linalg.norm(p[1] - p[0]) / max(np.linalg.norm(p[2] - p[0]), 1e-12))
 
 
-def scene_of(shapes: list) -> mi.Scene:
-    """A Mitsuba scene of already loaded ``shapes`` (for ray queries of its own)."""
-    return mi.load_dict({'type': 'scene', **{f'shape_{i}': shape for i, shape in enumerate(shapes)}})
-
-
 class Surroundings:
-    """The container's IOR, absorption and pose, the light and the backdrop of one scene, owned
-    by the integrator."""
+    """The container's interfaces (their IORs, the media's absorption, its pose), the light and
+    the backdrop of one scene, owned by the integrator."""
 
-    def __init__(self, eta: float, shapes: list, emitter: mi.Emitter, *, backdrop: list = (),
-                 light: str = 'emitter', pose: bool = False, pivot=(0.0, 0.0, 0.0),
-                 crease_angle: float = CREASE_ANGLE, board_texels: int = 0, sigma_a=None):
-        self.eta = mi.Float(eta)
-        #: Beer-Lambert absorption of the container's medium, RGB per scene unit (None: clear).
-        self.sigma_a = None if sigma_a is None else mi.Float(*map(float, sigma_a))
+    def __init__(self, interfaces: Interfaces | None, shapes: list, emitter: mi.Emitter, *,
+                 backdrop: list = (), light: str = 'emitter', pose: bool = False, pivot=(0.0, 0.0, 0.0),
+                 crease_angle: float = CREASE_ANGLE, board_texels: int = 0, absorption: bool = False):
+        #: The nested interfaces (None: no container, mode 'neus').
+        self.interfaces = interfaces
+        self.container_eta = self.inner_ior = self.sigma_a = None
+        if interfaces is not None:
+            #: The IOR inside the outermost interface (the glass), and inside the inner ones.
+            self.container_eta = mi.Float(interfaces.ior[0])
+            self.inner_ior = mi.Float(interfaces.ior[1:]) if interfaces.count > 1 else None
+            #: Beer-Lambert absorption of each region inside, RGB per scene unit (None: all clear).
+            if absorption or any(s is not None for s in interfaces.sigma_a):
+                self.sigma_a = mi.Float(np.ravel([s or (0.0, 0.0, 0.0) for s in interfaces.sigma_a]))
+            self._outer = mi.UInt32(interfaces.outer)
+            self._group = list(zip(shapes, interfaces.group_of_shape()))
         self.shapes = shapes
         #: The container alone, and the backdrop shapes (None without): see the module docstring.
         self.container = scene_of(shapes)
@@ -301,9 +306,11 @@ class Surroundings:
 
     def params(self) -> dict:
         """The refinable arrays, by their ``mi.traverse`` names (under the integrator)."""
-        out = {'container.eta': self.eta}
-        if self.sigma_a is not None:
-            out['container.sigma_a'] = self.sigma_a
+        out = {}
+        for name, array in (('container.eta', self.container_eta), ('container.inner_ior', self.inner_ior),
+                            ('container.sigma_a', self.sigma_a)):
+            if array is not None:
+                out[name] = array
         if self.pose is not None:
             out.update(self.pose.params())
         if self.light is not None:
@@ -312,11 +319,45 @@ class Surroundings:
             out[BoardShading.NAME] = self.shading.log_gain
         return out
 
-    def absorption(self) -> mi.Color3f | None:
-        """The medium's absorption coefficient as a colour (None: a clear container)."""
+    # The container's optics, per ray (Dr.Jit); region 0 is the world, g + 1 inside interface g.
+    def group(self, si: mi.SurfaceInteraction3f) -> mi.UInt32:
+        """The interface each hit belongs to."""
+        g = dr.zeros(mi.UInt32, dr.width(si.t))
+        for shape, group in self._group:
+            if group:
+                g = dr.select(si.shape == mi.ShapePtr(shape), group, g)
+        return g
+
+    def ior(self, region: mi.UInt32) -> mi.Float:
+        """The absolute IOR of each region."""
+        n = dr.select(region == 1, dr.gather(mi.Float, self.container_eta, dr.zeros(mi.UInt32, dr.width(region))),
+                      1.0)
+        if self.inner_ior is not None:
+            n = dr.select(region >= 2, dr.gather(mi.Float, self.inner_ior, dr.maximum(region, 2) - 2), n)
+        return n
+
+    def eta(self, group: mi.UInt32) -> mi.Float:
+        """The relative IOR of each interface, inside over outside (as its dielectric's η)."""
+        return self.ior(group + 1) / self.ior(dr.gather(mi.UInt32, self._outer, group))
+
+    def beyond(self, group: mi.UInt32, entering: mi.Bool) -> mi.UInt32:
+        """The region a ray refracted through an interface goes into."""
+        return dr.select(entering, group + 1, dr.gather(mi.UInt32, self._outer, group))
+
+    def absorption(self, region: mi.UInt32 | int) -> mi.Color3f | None:
+        """The absorption coefficient of each region (None: no region absorbs)."""
         if self.sigma_a is None:
             return None
-        return mi.Color3f(*(dr.gather(mi.Float, self.sigma_a, i) for i in range(3)))
+        if isinstance(region, int):
+            return mi.Color3f(*(dr.gather(mi.Float, self.sigma_a, mi.UInt32(3 * (region - 1) + c))
+                                for c in range(3))) if region else mi.Color3f(0.0)
+        i = 3 * (dr.maximum(region, 1) - 1)
+        return dr.select(region > 0, mi.Color3f(*(dr.gather(mi.Float, self.sigma_a, i + c) for c in range(3))), 0.0)
+
+    def attenuation(self, region: mi.UInt32, t: mi.Float) -> mi.Color3f:
+        """What a segment of length ``t`` in each region lets through (Beer-Lambert)."""
+        σ = self.absorption(region)
+        return mi.Color3f(1.0) if σ is None else dr.exp(-σ * t)
 
     def ambient(self, d: mi.Vector3f) -> mi.Color3f:
         """Radiance arriving from direction ``d`` outside the container (C_out)."""
@@ -351,6 +392,9 @@ class Surroundings:
         if refine.ior:
             groups.append(ParamGroup('ior', ('container.eta',), refine.ior_learning_rate, refine.after,
                                      tuple(refine.ior_range)))
+        if refine.inner_ior and self.inner_ior is not None:
+            groups.append(ParamGroup('inner_ior', ('container.inner_ior',), refine.ior_learning_rate, refine.after,
+                                     (1.0, refine.ior_range[1])))
         if refine.absorption:
             groups.append(ParamGroup('absorption', ('container.sigma_a',), refine.absorption_learning_rate,
                                      refine.after, (0.0, float('inf'))))
@@ -413,13 +457,14 @@ def surroundings_of(scene: mi.Scene, render, refine) -> 'Surroundings':
     """The container, light and backdrop of ``scene`` as ``render`` (a
     :class:`~reneus_mi.config.RenderConfig`) models them, with the parameters that ``refine`` (a
     :class:`~reneus_mi.config.RefineConfig`) fits (the pose, the light), checked: every shape a
-    smooth dielectric of one IOR or an area emitter."""
+    smooth dielectric (the container's interfaces, :mod:`reneus_mi.render.interfaces`) or an
+    area emitter."""
     shapes, backdrop, other = scene_parts(scene)
     if scene.environment() is None:
         raise ReneusError("reneus integrator: the scene has no environment emitter; expected "
                           "<emitter type=\"constant\"> with the ambient radiance C_out (0.8 in the paper)")
     if render.mode == 'neus':
-        return Surroundings(1.0, shapes, scene.environment(), backdrop=backdrop, light=refine.light_model(),
+        return Surroundings(None, shapes, scene.environment(), backdrop=backdrop, light=refine.light_model(),
                             board_texels=render.board_texels)
     for shape in other:
         bsdf = shape.bsdf()
@@ -430,61 +475,11 @@ def surroundings_of(scene: mi.Scene, render, refine) -> 'Surroundings':
     if not shapes:
         raise ReneusError('reneus integrator: the scene has no shape with a dielectric BSDF; expected '
                           'the container as such a shape')
-    eta = None
-    for shape in shapes:
-        bsdf = shape.bsdf()
-        value = mi.traverse(bsdf)['eta']
-        if eta is not None and abs(value - eta) > 1e-6:
-            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has IOR {value} but another "
-                              f'container shape has {eta}; expected one IOR')
-        eta = value
-    sigma_a = container_absorption(shapes)
-    if sigma_a is None and refine.absorption:
-        sigma_a = (0.0, 0.0, 0.0)
     if refine.pose and not all(isinstance(sh, mi.Mesh) for sh in shapes):
         raise ReneusError('reneus integrator: refine.pose needs the container as triangle meshes '
                           '(ply, obj); the scene has another kind of shape')
     bbox = shapes_bbox(shapes)
-    return Surroundings(eta, shapes, scene.environment(), backdrop=backdrop, light=refine.light_model(),
-                        pose=refine.pose, pivot=0.5 * (bbox.min + bbox.max),
-                        crease_angle=render.crease_angle, board_texels=render.board_texels, sigma_a=sigma_a)
-
-
-def absorbing_medium(sigma_a) -> dict:
-    """Mitsuba's ``homogeneous`` medium that absorbs ``sigma_a`` (RGB per scene unit) and
-    scatters nothing, as a ``load_dict`` dict: what :func:`container_absorption` reads back. An
-    RGB sigma_t is a reflectance (at most 1 per channel), so the largest channel is the scale."""
-    sigma_a = np.broadcast_to(np.asarray(sigma_a, np.float64), (3,))
-    scale = float(sigma_a.max()) if sigma_a.max() > 0 else 1.0
-    return {'type': 'homogeneous', 'albedo': 0.0, 'scale': scale,
-            'sigma_t': {'type': 'rgb', 'value': (sigma_a / scale).tolist()}}
-
-
-def container_absorption(shapes: list) -> tuple[float, float, float] | None:
-    """The absorption coefficient (RGB, per scene unit) of the medium inside the container:
-    the shapes' ``interior`` medium, Mitsuba's ``homogeneous`` with albedo 0 (pure absorption,
-    what ``volpath`` renders), sigma_t times its scale; None where they have none. Every shape
-    must agree, and nothing may sit outside (the light reaches the container through air)."""
-    values = set()
-    for shape in shapes:
-        if shape.exterior_medium() is not None:
-            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has an exterior medium; expected "
-                              'none (the container stands in air)')
-        medium = shape.interior_medium()
-        if medium is None:
-            values.add(None)
-            continue
-        params = mi.traverse(medium)
-        if medium.class_name() != 'HomogeneousMedium' or 'sigma_t.value.value' not in params:
-            raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {medium.class_name()} "
-                              'interior; expected a homogeneous medium with a constant sigma_t')
-        albedo = np.array(params['albedo.value.value'], np.float64).ravel()
-        if albedo.max() > 1e-6:
-            raise ReneusError(f"reneus integrator: shape '{shape.id()}': medium albedo "
-                              f'{albedo.round(4).tolist()}; expected 0 (the medium absorbs, it does not scatter)')
-        sigma = np.array(params['sigma_t.value.value'], np.float64).ravel() * float(params['scale'])
-        values.add(tuple(np.broadcast_to(sigma, 3).round(9).tolist()))
-    if len(values) > 1:
-        raise ReneusError('reneus integrator: the container shapes have different interior media '
-                          f"({', '.join(map(str, sorted(values, key=str)))}); expected one")
-    return values.pop() if values else None
+    return Surroundings(interfaces_of(shapes), shapes, scene.environment(), backdrop=backdrop,
+                        light=refine.light_model(), pose=refine.pose, pivot=0.5 * (bbox.min + bbox.max),
+                        crease_angle=render.crease_angle, board_texels=render.board_texels,
+                        absorption=refine.absorption)

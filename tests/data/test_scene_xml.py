@@ -12,7 +12,7 @@ from reneus_mi.data import Dataset, write_dataset
 from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.data.masks import container_masks
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
-from reneus_mi.render.surroundings import container_absorption
+from reneus_mi.render.interfaces import medium_absorption
 from reneus_mi.scene import main
 
 H, W = 12, 16
@@ -206,7 +206,7 @@ def test_absorbing_container_is_written_as_its_interior_medium(tmp_path):
     scene = mi.load_file(xml)
     container = [s for s in scene.shapes() if s.id() == 'container'][0]
     assert container.interior_medium().class_name() == 'HomogeneousMedium'
-    assert np.allclose(container_absorption([container]), [0.05, 0.2, 1.7], rtol=1e-6)
+    assert np.allclose(medium_absorption(container), [0.05, 0.2, 1.7], rtol=1e-6)
     clear = str(tmp_path / 'clear.xml')
     write_scene(dataclasses.replace(ds, absorption=None), clear)
-    assert container_absorption([s for s in mi.load_file(clear).shapes() if s.id() == 'container']) is None
+    assert medium_absorption([s for s in mi.load_file(clear).shapes() if s.id() == 'container'][0]) is None

@@ -200,7 +200,7 @@ def test_xml_with_every_parameter():
     assert it.dataset == 'some/folder'
     assert it.frame.center == (0.1, 0.0, 0.0) and it.frame.scale == 1.5
     assert it.field.cfg.radius == 0.25 and it.field.cfg.color == pytest.approx((0.2, 0.5, 0.7))
-    assert float(it.bind(scene).eta[0]) == pytest.approx(1.5 / 1.000277, rel=1e-5)
+    assert float(it.bind(scene).container_eta[0]) == pytest.approx(1.5 / 1.000277, rel=1e-5)
 
 
 @pytest.mark.parametrize('mode, depth, shape, message', [

@@ -157,8 +157,8 @@ def test_smooth_container_comparison_has_teeth(rounded_block, monkeypatch):
     from reneus_mi.plugins import reneus as plugin
     original = plugin._Hit
 
-    def flat(t, p, n, n_s, valid):
-        return original(t, p, n, n, valid)
+    def flat(t, p, n, n_s, valid, group):
+        return original(t, p, n, n, valid, group)
     mean, _ = path_reference(path_scene(24, max_depth=3, mesh=rounded_block), 1024)
     monkeypatch.setattr(plugin, '_Hit', flat)
     reneus = reneus_pixels(reneus_scene(24, mesh=rounded_block, max_depth=2, terminal='black'))
@@ -179,7 +179,7 @@ def test_refined_container_file_keeps_its_optics(rounded_block, tmp_path, contai
         path = str(tmp_path / 'box8.ply')
         trimesh.creation.box(extents=(1.1, 0.9, 1.0)).export(path)
     shape = container_shape(path)
-    surroundings = Surroundings(1.45, [shape], _constant(), pose=True, pivot=(0.1, 0.2, -0.1))
+    surroundings = Surroundings(None, [shape], _constant(), pose=True, pivot=(0.1, 0.2, -0.1))
     surroundings.pose = _pose()
     written = str(tmp_path / 'refined.ply')
     write_mesh(surroundings.posed_mesh(), written)

@@ -1,0 +1,167 @@
+"""The container as nested closed interfaces and the media between them (beyond the paper,
+whose container is one solid block).
+
+A display case is a box of glass walls with air inside: two interfaces, the outer faces
+(glass inside, air outside) and the inner ones (air inside, glass outside). A jar of alcohol
+is a glass wall around the liquid: the outer surface, and the liquid's (liquid inside, glass
+outside). The scene states each as Mitsuba does: shapes with a smooth ``dielectric`` BSDF
+whose η is the ratio of the IORs on its two sides (``int_ior`` / ``ext_ior``), and an
+``interior`` medium where the space inside absorbs (``homogeneous``, albedo 0: amber, a
+tinted liquid). Shapes with the same η and medium form one interface (a jar may be a
+``cylinder`` and two ``disk`` shapes); :func:`interfaces_of` finds how the interfaces nest,
+from where rays cross them.
+
+Regions are numbered from the world outward in: 0 is the world (air, IOR 1, clear), the
+inside of interface g is region g + 1, and interfaces are sorted outermost first, so region 1
+is inside the outermost glass. The field lives in the innermost region (the block itself,
+the case's air, the jar's liquid).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from reneus_mi.geometry.container import scene_of
+from reneus_mi.utils.errors import ReneusError
+
+#: Crossings followed to tell inside from outside; a closed container has a handful.
+_MAX_CROSSINGS = 64
+#: A direction no container face is parallel to, for the crossing counts.
+_PROBE = np.array([0.3147, 0.4721, 0.8238]) / np.linalg.norm([0.3147, 0.4721, 0.8238])
+#: Directions from an interface's centre to points on it, for the nesting test.
+_SPOKES = np.concatenate([np.eye(3), -np.eye(3), np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+                          / np.sqrt(3.0)])
+
+
+@dataclass(frozen=True)
+class Interfaces:
+    """The container's interfaces, outermost first, and what lies inside each."""
+    shapes: tuple[tuple[int, ...], ...]
+    """The scene's container shapes (indices) that make up each interface."""
+    outer: tuple[int, ...]
+    """The region outside each interface (0: the world); its inside is region g + 1."""
+    ior: tuple[float, ...]
+    """The absolute IOR inside each interface (region g + 1), the world's being 1."""
+    sigma_a: tuple[tuple[float, float, float] | None, ...]
+    """The absorption inside each interface (RGB per scene unit; None: clear)."""
+
+    @property
+    def count(self) -> int:
+        return len(self.shapes)
+
+    @property
+    def field(self) -> int:
+        """The region the field lives in: inside the innermost interface."""
+        return self.count
+
+    def group_of_shape(self) -> list[int]:
+        """The interface each container shape belongs to, by the shape's index."""
+        out = {}
+        for g, members in enumerate(self.shapes):
+            out.update({k: g for k in members})
+        return [out[k] for k in range(len(out))]
+
+
+def interfaces_of(shapes: list) -> Interfaces:
+    """The interfaces the container ``shapes`` (smooth dielectrics) make, checked: they nest
+    one inside the other, each closed; the IORs follow from their ratios, from the world in."""
+    keys, members = [], []
+    for k, shape in enumerate(shapes):
+        key = (round(float(mi.traverse(shape.bsdf())['eta']), 6), medium_absorption(shape))
+        if key not in keys:
+            keys.append(key)
+            members.append([])
+        members[keys.index(key)].append(k)
+    scenes = [scene_of([shapes[k] for k in m]) for m in members]
+    names = [', '.join(f"'{shapes[k].id()}'" for k in m) for m in members]
+    # Interface b lies inside interface a when points on b are inside a.
+    points = [_points_on(scene, name) for scene, name in zip(scenes, names)]
+    inside = [[a != b and bool(_inside(scenes[a], points[b]).all()) for a in range(len(scenes))]
+              for b in range(len(scenes))]
+    depth = [sum(row) for row in inside]
+    order = sorted(range(len(scenes)), key=lambda g: depth[g])
+    if [depth[g] for g in order] != list(range(len(order))):
+        raise ReneusError(f"reneus integrator: the container's interfaces ({'; '.join(names)}) do not nest "
+                          'one inside the other; expected a solid block, or walls around air or a liquid '
+                          '(each interface a closed surface, with its own IOR ratio)')
+    outer, ior, sigma_a = [], [], []
+    for i, g in enumerate(order):
+        eta, sigma = keys[g]
+        outside = 0 if i == 0 else i      # the region of the interface just outside, order[i - 1]
+        outer.append(outside)
+        ior.append(eta * (1.0 if outside == 0 else ior[outside - 1]))
+        sigma_a.append(sigma)
+        for k in members[g]:
+            if shapes[k].exterior_medium() is not None and (i == 0 or medium_absorption(shapes[k], 'exterior')
+                                                             != sigma_a[outside - 1]):
+                raise ReneusError(f"reneus integrator: shape '{shapes[k].id()}' has an exterior medium that is "
+                                  "not the one around it; expected none (the medium is the interior of the "
+                                  "shape around it)")
+    return Interfaces(shapes=tuple(tuple(members[g]) for g in order), outer=tuple(outer), ior=tuple(ior),
+                      sigma_a=tuple(sigma_a))
+
+
+def _inside(scene: mi.Scene, points: np.ndarray) -> np.ndarray:
+    """Whether each point lies inside the closed surface of ``scene``: an odd number of
+    crossings along a ray."""
+    n = len(points)
+    o = mi.Point3f(*(mi.Float(points[:, i].astype(np.float32)) for i in range(3)))
+    d = mi.Vector3f(*(dr.full(mi.Float, float(c), n) for c in _PROBE))
+    count = dr.zeros(mi.UInt32, n)
+    active = dr.full(mi.Bool, True, n)
+    for _ in range(_MAX_CROSSINGS):
+        si = scene.ray_intersect(mi.Ray3f(o, d), active)
+        active &= si.is_valid()
+        if not dr.any(active):
+            break
+        count += dr.select(active, 1, 0)
+        o = dr.select(active, si.spawn_ray(d).o, o)
+    return (np.array(count) % 2) == 1
+
+
+def _points_on(scene: mi.Scene, name: str) -> np.ndarray:
+    """Points on an interface, seen from its centre along :data:`_SPOKES`, moved a hair inward."""
+    bbox = scene.bbox()
+    c = np.array(bbox.center(), np.float64)
+    size = float(np.max(np.array(bbox.extents())))
+    d = _SPOKES
+    si = scene.ray_intersect(mi.Ray3f(mi.Point3f(*(mi.Float(np.full(len(d), c[i], np.float32)) for i in range(3))),
+                                      mi.Vector3f(*(mi.Float(d[:, i].astype(np.float32)) for i in range(3)))))
+    valid = np.array(si.is_valid())
+    if not valid.any():
+        raise ReneusError(f'reneus integrator: interface {name}: no ray from its centre meets it; expected a '
+                          'closed surface around its centre')
+    t = np.array(si.t, np.float64)[valid]
+    return c + d[valid] * (t - 1e-4 * size)[:, None]
+
+
+def medium_absorption(shape, side: str = 'interior') -> tuple[float, float, float] | None:
+    """The absorption coefficient (RGB, per scene unit) of a shape's ``side`` medium, Mitsuba's
+    ``homogeneous`` with albedo 0 (pure absorption, what ``volpath`` renders): sigma_t times its
+    scale; None where it has none."""
+    medium = shape.interior_medium() if side == 'interior' else shape.exterior_medium()
+    if medium is None:
+        return None
+    params = mi.traverse(medium)
+    if medium.class_name() != 'HomogeneousMedium' or 'sigma_t.value.value' not in params:
+        raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {medium.class_name()} {side}; "
+                          'expected a homogeneous medium with a constant sigma_t')
+    albedo = np.array(params['albedo.value.value'], np.float64).ravel()
+    if albedo.max() > 1e-6:
+        raise ReneusError(f"reneus integrator: shape '{shape.id()}': medium albedo {albedo.round(4).tolist()}; "
+                          'expected 0 (the medium absorbs, it does not scatter)')
+    sigma = np.array(params['sigma_t.value.value'], np.float64).ravel() * float(params['scale'])
+    return tuple(np.broadcast_to(sigma, 3).round(9).tolist())
+
+
+def absorbing_medium(sigma_a) -> dict:
+    """Mitsuba's ``homogeneous`` medium that absorbs ``sigma_a`` (RGB per scene unit) and
+    scatters nothing, as a ``load_dict`` dict: what :func:`medium_absorption` reads back. An
+    RGB sigma_t is a reflectance (at most 1 per channel), so the largest channel is the scale."""
+    sigma_a = np.broadcast_to(np.asarray(sigma_a, np.float64), (3,))
+    scale = float(sigma_a.max()) if sigma_a.max() > 0 else 1.0
+    return {'type': 'homogeneous', 'albedo': 0.0, 'scale': scale,
+            'sigma_t': {'type': 'rgb', 'value': (sigma_a / scale).tolist()}}

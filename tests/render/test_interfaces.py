@@ -1,0 +1,178 @@
+"""Containers of nested interfaces (beyond the paper's solid block): a display case (glass
+walls around air) and a jar of tinted liquid (a glass wall around an absorbing liquid, each
+closed surface a cylinder and two disks), each with an opaque probe inside, against Mitsuba's
+``path`` and ``volpath`` on the same scene; each part shown to matter; the derivatives with
+respect to the IORs against central differences; how the interfaces are found."""
+import functools
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from reference import BLOCK_HALF, BLOCK_ROTATION, path_reference, path_scene, pixel_rays, reneus_pixels, reneus_scene
+from reneus_mi.config import RefineConfig
+from reneus_mi.render.interfaces import absorbing_medium, interfaces_of
+from reneus_mi.render.surroundings import Surroundings
+from reneus_mi.utils.errors import ReneusError
+
+RES = 24
+SPP = 8192
+#: Mitsuba's air, the glass, the liquid (ethanol).
+AIR, GLASS, LIQUID = 1.000277, 1.5, 1.36
+#: The case's walls, and the jar's glass, in scene units (the block is about 1 across).
+WALL = 0.06
+#: The jar's liquid absorbs (a tinted preserving fluid), per unit.
+LIQUID_SIGMA = (0.1, 0.3, 0.9)
+#: Mean |reneus - path| over the pixels, linear radiance, as for the solid block: measured
+#: 0.0005 / 0.0006 (case, D_re 2 / 3) and 0.0010 / 0.0011 (jar); either seen as one solid block
+#: of glass (the paper's model) is 0.06-0.07 off.
+MEAN_TOL = 0.003
+#: 99th percentile of the per-pixel error: measured 0.005 (case) and 0.009 (jar).
+P99_TOL = 0.02
+
+
+def _dielectric(int_ior, ext_ior):
+    return {'type': 'dielectric', 'int_ior': int_ior, 'ext_ior': ext_ior}
+
+
+def case():
+    """A glass case: the block's outer faces, and inner faces WALL in from them around air."""
+    inner = [h - WALL for h in BLOCK_HALF]
+    return {'outer': {'type': 'cube', 'to_world': BLOCK_ROTATION.scale(list(BLOCK_HALF)),
+                      'bsdf': _dielectric(GLASS, AIR)},
+            'cavity': {'type': 'cube', 'to_world': BLOCK_ROTATION.scale(inner), 'bsdf': _dielectric(AIR, GLASS)}}
+
+
+def _closed_cylinder(name, radius, half, bsdf, interior=None):
+    """A closed cylinder about the y axis: Mitsuba's open ``cylinder`` and a ``disk`` at each end,
+    every normal pointing out."""
+    up = mi.ScalarTransform4f().rotate([1, 0, 0], -90)      # the disk's +z to +y
+    extra = {} if interior is None else {'interior': interior}
+    return {f'{name}_wall': {'type': 'cylinder', 'p0': [0, -half, 0], 'p1': [0, half, 0], 'radius': radius,
+                             'bsdf': bsdf, **extra},
+            f'{name}_top': {'type': 'disk', 'to_world': mi.ScalarTransform4f().translate([0, half, 0]) @ up
+                            @ mi.ScalarTransform4f().scale([radius, radius, 1]), 'bsdf': bsdf, **extra},
+            f'{name}_bottom': {'type': 'disk', 'to_world': mi.ScalarTransform4f().translate([0, -half, 0]) @ up
+                               @ mi.ScalarTransform4f().rotate([1, 0, 0], 180)
+                               @ mi.ScalarTransform4f().scale([radius, radius, 1]), 'bsdf': bsdf, **extra}}
+
+
+def jar():
+    """A glass jar full of a tinted liquid: glass outside, the liquid's surface WALL in from it."""
+    return {**_closed_cylinder('glass', 0.58, 0.5, _dielectric(GLASS, AIR)),
+            **_closed_cylinder('liquid', 0.58 - WALL, 0.5 - WALL, _dielectric(LIQUID, GLASS),
+                               absorbing_medium(LIQUID_SIGMA))}
+
+
+#: Each container, the IOR around its probe, whether it holds a medium, the depth it needs.
+CONTAINERS = {'case': (case, AIR, False, 2), 'jar': (jar, LIQUID, True, 2)}
+
+
+@functools.cache
+def reference(kind: str, depth: int) -> np.ndarray:
+    shapes, probe_ior, volume, _ = CONTAINERS[kind]
+    return path_reference(path_scene(RES, max_depth=depth + 1, shapes=shapes(), probe_ior=probe_ior,
+                                     volume=volume), SPP)[0]
+
+
+def errors(kind: str, depth: int) -> tuple[float, float]:
+    image = reneus_pixels(reneus_scene(RES, shapes=CONTAINERS[kind][0](), max_depth=depth, terminal='black'))
+    d = np.abs(image - reference(kind, depth))
+    return d.mean(), np.percentile(d, 99)
+
+
+@pytest.mark.parametrize('kind', CONTAINERS)
+@pytest.mark.parametrize('extra', [0, 1], ids=['needed', 'one_more'])
+def test_nested_container_matches_path_tracer(kind, extra):
+    depth = CONTAINERS[kind][3] + extra
+    mean_err, p99 = errors(kind, depth)
+    assert mean_err < MEAN_TOL and p99 < P99_TOL, (kind, mean_err, p99)
+
+
+def _absolute_ior(self, group):
+    """An inner interface given the IOR inside it, not the ratio of its two sides."""
+    return self.ior(group + 1)
+
+
+@pytest.mark.parametrize('kind', CONTAINERS)
+@pytest.mark.parametrize('broken', ['absolute_ior', 'one_solid_block'])
+def test_nested_comparison_has_teeth(kind, broken, monkeypatch):
+    depth = CONTAINERS[kind][3]
+    if broken == 'absolute_ior':
+        monkeypatch.setattr(Surroundings, 'eta', _absolute_ior)
+    if broken == 'one_solid_block':
+        # The paper's one solid block: the outer glass alone, the field inside it.
+        shapes = CONTAINERS[kind][0]()
+        outer = {k: v for k, v in shapes.items() if k.startswith(('outer', 'glass'))}
+        image = reneus_pixels(reneus_scene(RES, shapes=outer, max_depth=depth, terminal='black'))
+        d = np.abs(image - reference(kind, depth))
+        mean_err, p99 = d.mean(), np.percentile(d, 99)
+    else:
+        mean_err, p99 = errors(kind, depth)
+    assert mean_err > 2 * MEAN_TOL or p99 > 2 * P99_TOL, (kind, broken, mean_err, p99)
+
+
+def test_interfaces_are_found_nested_whatever_their_order():
+    scene = reneus_scene(RES, shapes={**dict(reversed(list(jar().items())))})
+    shapes = [s for s in scene.shapes()]
+    found = interfaces_of(shapes)
+    names = [{shapes[k].id() for k in group} for group in found.shapes]
+    assert names == [{'glass_wall', 'glass_top', 'glass_bottom'}, {'liquid_wall', 'liquid_top', 'liquid_bottom'}]
+    assert found.outer == (0, 1) and found.field == 2
+    assert found.ior == pytest.approx((GLASS / AIR, LIQUID / AIR), rel=1e-6)
+    assert found.sigma_a[0] is None and found.sigma_a[1] == pytest.approx(LIQUID_SIGMA)
+
+
+def test_side_by_side_blocks_are_refused():
+    apart = {'left': {'type': 'cube', 'to_world': mi.ScalarTransform4f().translate([-1.5, 0, 0]),
+                      'bsdf': _dielectric(GLASS, AIR)},
+             'right': {'type': 'cube', 'to_world': mi.ScalarTransform4f().translate([1.5, 0, 0]),
+                       'bsdf': _dielectric(1.6, AIR)}}
+    scene = reneus_scene(RES, shapes=apart)
+    with pytest.raises(ReneusError, match=r"interfaces \('(left|right)'; '(left|right)'\) do not nest one inside the other"):
+        scene.integrator().bind(scene)
+
+
+@pytest.mark.parametrize('key', ['container.eta', 'container.inner_ior', 'container.sigma_a'])
+def test_render_gradients_through_the_jar_match_finite_differences(key):
+    # As for the solid block (test_surroundings): a soft field, coarse samples only, pixel by pixel.
+    scene = reneus_scene(RES, shapes=jar(), max_depth=2, n_fine=0, field_inv_s=60.0)
+    integrator = scene.integrator()
+    integrator.configure(refine=RefineConfig(inner_ior=True))
+    integrator.bind(scene)
+    ray = pixel_rays(scene)
+    array = integrator.params()[key]
+    value = np.array(array)
+    e = np.zeros_like(value)
+    e[-1] = 1.0
+    dr.enable_grad(array)
+    dr.set_grad(array, mi.Float(e))
+    L = integrator.render_rays(scene, ray).L
+    dr.forward_to(L)
+    ad = np.array(dr.grad(L))
+    dr.disable_grad(array)
+    h = 2e-3
+    f = []
+    for sign in (1, -1):
+        mi.set_property(array, mi.Float(value + sign * h * e))
+        f.append(np.array(integrator.render_rays(scene, ray).L))
+    mi.set_property(array, mi.Float(value))
+    fd = (f[0] - f[1]) / (2 * h)
+    agree = np.abs(ad - fd) < 0.01 + 0.05 * np.abs(fd)
+    assert agree.mean() > 0.98, (key, agree.mean())
+    assert np.abs(ad - fd)[agree].sum() < 0.03 * np.abs(fd)[agree].sum(), key
+    assert np.abs(fd).max() > 0.05, (key, np.abs(fd).max())
+
+
+def test_tinted_jar_in_uniform_light_follows_the_empty_container():
+    # Against volpath's full transport (max_depth 16) at D_re 2: 'trace' follows the rays left
+    # inside through the glass and the tinted liquid (measured 0.0058: what it drops is the
+    # field beyond the tree), 'ambient' sees the light outside straight on (0.0166).
+    shapes, probe_ior, volume, depth = CONTAINERS['jar']
+    mean, _ = path_reference(path_scene(RES, max_depth=16, shapes=shapes(), probe_ior=probe_ior, volume=volume),
+                             SPP)
+    error = {terminal: np.abs(reneus_pixels(reneus_scene(RES, shapes=shapes(), max_depth=depth,
+                                                         terminal=terminal)) - mean).mean()
+             for terminal in ('trace', 'ambient')}
+    assert error['trace'] < 0.01 and error['ambient'] > 2 * error['trace'], error
