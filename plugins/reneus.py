@@ -57,12 +57,16 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     NeuS volume rendering inside it.
 
     The scene's shapes with a smooth ``dielectric`` BSDF are together the
-    container, and its IOR is the BSDF's η. Their ``interior`` medium, where they
-    have one (Mitsuba's ``homogeneous`` with albedo 0: amber, tinted resin), absorbs
-    along every segment inside, by Beer-Lambert's law: the field's light at distance t
-    into a segment and the light from beyond a segment of length t both arrive times
-    exp(-σ_a t), σ_a its ``sigma_t`` (RGB) times its ``scale``, as ``volpath``
-    renders it. A mesh bends light by
+    container: the paper's solid block, or nested closed interfaces (a display
+    case's outer and inner faces, a jar's glass and its liquid), each bending light
+    by its BSDF's η, the ratio of the IORs on its two sides
+    (:mod:`reneus_mi.render.interfaces`). Every ray knows the region it is in; the
+    field lives in the innermost. A region's ``interior`` medium, where its
+    interface has one (Mitsuba's ``homogeneous`` with albedo 0: amber, a tinted
+    liquid), absorbs along every segment in it by Beer-Lambert's law: the field's
+    light at distance t into a segment and the light from beyond a segment of
+    length t both arrive times exp(-σ_a t), σ_a its ``sigma_t`` (RGB) times its
+    ``scale``, as ``volpath`` renders it. A mesh bends light by
     shading normals that follow its geometry, however its file was written: flat
     across edges sharper than ``crease_angle``, smooth elsewhere (the file's stored
     normals where it has them; :mod:`reneus_mi.geometry.container`). The scene's
@@ -79,7 +83,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     Each camera ray is traced: at every interface hit both the reflected and
     the refracted ray are followed, weighted by the unpolarised Fresnel
     reflectance R and by 1 - R (total internal reflection gives R = 1). A ray
-    segment inside the container is volume rendered; its transmittance T_ℓ
+    segment in the field's region is volume rendered; its transmittance T_ℓ
     multiplies whatever lies beyond it. A ray that leaves takes the backdrop it
     meets, or the ambient.
 

@@ -165,3 +165,42 @@ def absorbing_medium(sigma_a) -> dict:
     scale = float(sigma_a.max()) if sigma_a.max() > 0 else 1.0
     return {'type': 'homogeneous', 'albedo': 0.0, 'scale': scale,
             'sigma_t': {'type': 'rgb', 'value': (sigma_a / scale).tolist()}}
+
+
+# ------------------------------------------------------------ common containers
+#: Mitsuba's air, which its ``dielectric`` takes as the outside by default.
+AIR = 1.000277
+
+
+def dielectric(int_ior: float, ext_ior: float = AIR) -> dict:
+    return {'type': 'dielectric', 'int_ior': int_ior, 'ext_ior': ext_ior}
+
+
+def display_case(half, wall: float, ior: float = 1.5, to_world=None) -> dict:
+    """A glass case as Mitsuba shapes: a box of half-extents ``half`` (``cube`` placed by
+    ``to_world``), its inner faces ``wall`` in from the outer ones around air."""
+    to_world = to_world or mi.ScalarTransform4f()
+    inner = [h - wall for h in half]
+    return {'case_outer': {'type': 'cube', 'to_world': to_world.scale(list(half)), 'bsdf': dielectric(ior)},
+            'case_inner': {'type': 'cube', 'to_world': to_world.scale(inner), 'bsdf': dielectric(AIR, ior)}}
+
+
+def jar(radius: float, half_height: float, wall: float, ior: float = 1.5, liquid_ior: float = 1.36,
+        sigma_a=None) -> dict:
+    """A closed glass jar about the y axis full of a liquid, as Mitsuba shapes: each surface a
+    ``cylinder`` and a ``disk`` at either end (normals out), the liquid's ``wall`` in from the
+    glass's, absorbing ``sigma_a`` (RGB per unit; None: clear)."""
+    liquid = None if sigma_a is None else absorbing_medium(sigma_a)
+    return {**_closed_cylinder('jar_glass', radius, half_height, dielectric(ior), None),
+            **_closed_cylinder('jar_liquid', radius - wall, half_height - wall, dielectric(liquid_ior, ior), liquid)}
+
+
+def _closed_cylinder(name: str, radius: float, half: float, bsdf: dict, interior: dict | None) -> dict:
+    up = mi.ScalarTransform4f().rotate([1, 0, 0], -90)      # a disk's +z to +y
+    size = mi.ScalarTransform4f().scale([radius, radius, 1.0])
+    extra = {'bsdf': bsdf, **({} if interior is None else {'interior': interior})}
+    return {f'{name}_wall': {'type': 'cylinder', 'p0': [0, -half, 0], 'p1': [0, half, 0], 'radius': radius, **extra},
+            f'{name}_top': {'type': 'disk', 'to_world': mi.ScalarTransform4f().translate([0, half, 0]) @ up @ size,
+                            **extra},
+            f'{name}_bottom': {'type': 'disk', 'to_world': mi.ScalarTransform4f().translate([0, -half, 0]) @ up
+                               @ mi.ScalarTransform4f().rotate([1, 0, 0], 180) @ size, **extra}}

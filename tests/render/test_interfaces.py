@@ -12,14 +12,15 @@ import pytest
 
 from reference import BLOCK_HALF, BLOCK_ROTATION, path_reference, path_scene, pixel_rays, reneus_pixels, reneus_scene
 from reneus_mi.config import RefineConfig
-from reneus_mi.render.interfaces import absorbing_medium, interfaces_of
+from reneus_mi.render import interfaces
+from reneus_mi.render.interfaces import AIR, dielectric, display_case, interfaces_of
 from reneus_mi.render.surroundings import Surroundings
 from reneus_mi.utils.errors import ReneusError
 
 RES = 24
 SPP = 8192
-#: Mitsuba's air, the glass, the liquid (ethanol).
-AIR, GLASS, LIQUID = 1.000277, 1.5, 1.36
+#: The glass, the liquid (ethanol).
+GLASS, LIQUID = 1.5, 1.36
 #: The case's walls, and the jar's glass, in scene units (the block is about 1 across).
 WALL = 0.06
 #: The jar's liquid absorbs (a tinted preserving fluid), per unit.
@@ -32,37 +33,14 @@ MEAN_TOL = 0.003
 P99_TOL = 0.02
 
 
-def _dielectric(int_ior, ext_ior):
-    return {'type': 'dielectric', 'int_ior': int_ior, 'ext_ior': ext_ior}
-
-
 def case():
     """A glass case: the block's outer faces, and inner faces WALL in from them around air."""
-    inner = [h - WALL for h in BLOCK_HALF]
-    return {'outer': {'type': 'cube', 'to_world': BLOCK_ROTATION.scale(list(BLOCK_HALF)),
-                      'bsdf': _dielectric(GLASS, AIR)},
-            'cavity': {'type': 'cube', 'to_world': BLOCK_ROTATION.scale(inner), 'bsdf': _dielectric(AIR, GLASS)}}
-
-
-def _closed_cylinder(name, radius, half, bsdf, interior=None):
-    """A closed cylinder about the y axis: Mitsuba's open ``cylinder`` and a ``disk`` at each end,
-    every normal pointing out."""
-    up = mi.ScalarTransform4f().rotate([1, 0, 0], -90)      # the disk's +z to +y
-    extra = {} if interior is None else {'interior': interior}
-    return {f'{name}_wall': {'type': 'cylinder', 'p0': [0, -half, 0], 'p1': [0, half, 0], 'radius': radius,
-                             'bsdf': bsdf, **extra},
-            f'{name}_top': {'type': 'disk', 'to_world': mi.ScalarTransform4f().translate([0, half, 0]) @ up
-                            @ mi.ScalarTransform4f().scale([radius, radius, 1]), 'bsdf': bsdf, **extra},
-            f'{name}_bottom': {'type': 'disk', 'to_world': mi.ScalarTransform4f().translate([0, -half, 0]) @ up
-                               @ mi.ScalarTransform4f().rotate([1, 0, 0], 180)
-                               @ mi.ScalarTransform4f().scale([radius, radius, 1]), 'bsdf': bsdf, **extra}}
+    return display_case(BLOCK_HALF, WALL, GLASS, BLOCK_ROTATION)
 
 
 def jar():
     """A glass jar full of a tinted liquid: glass outside, the liquid's surface WALL in from it."""
-    return {**_closed_cylinder('glass', 0.58, 0.5, _dielectric(GLASS, AIR)),
-            **_closed_cylinder('liquid', 0.58 - WALL, 0.5 - WALL, _dielectric(LIQUID, GLASS),
-                               absorbing_medium(LIQUID_SIGMA))}
+    return interfaces.jar(0.58, 0.5, WALL, GLASS, LIQUID, LIQUID_SIGMA)
 
 
 #: Each container, the IOR around its probe, whether it holds a medium, the depth it needs.
@@ -104,7 +82,7 @@ def test_nested_comparison_has_teeth(kind, broken, monkeypatch):
     if broken == 'one_solid_block':
         # The paper's one solid block: the outer glass alone, the field inside it.
         shapes = CONTAINERS[kind][0]()
-        outer = {k: v for k, v in shapes.items() if k.startswith(('outer', 'glass'))}
+        outer = {k: v for k, v in shapes.items() if k.startswith(('case_outer', 'jar_glass'))}
         image = reneus_pixels(reneus_scene(RES, shapes=outer, max_depth=depth, terminal='black'))
         d = np.abs(image - reference(kind, depth))
         mean_err, p99 = d.mean(), np.percentile(d, 99)
@@ -118,7 +96,8 @@ def test_interfaces_are_found_nested_whatever_their_order():
     shapes = [s for s in scene.shapes()]
     found = interfaces_of(shapes)
     names = [{shapes[k].id() for k in group} for group in found.shapes]
-    assert names == [{'glass_wall', 'glass_top', 'glass_bottom'}, {'liquid_wall', 'liquid_top', 'liquid_bottom'}]
+    assert names == [{'jar_glass_wall', 'jar_glass_top', 'jar_glass_bottom'},
+                     {'jar_liquid_wall', 'jar_liquid_top', 'jar_liquid_bottom'}]
     assert found.outer == (0, 1) and found.field == 2
     assert found.ior == pytest.approx((GLASS / AIR, LIQUID / AIR), rel=1e-6)
     assert found.sigma_a[0] is None and found.sigma_a[1] == pytest.approx(LIQUID_SIGMA)
@@ -126,9 +105,9 @@ def test_interfaces_are_found_nested_whatever_their_order():
 
 def test_side_by_side_blocks_are_refused():
     apart = {'left': {'type': 'cube', 'to_world': mi.ScalarTransform4f().translate([-1.5, 0, 0]),
-                      'bsdf': _dielectric(GLASS, AIR)},
+                      'bsdf': dielectric(GLASS)},
              'right': {'type': 'cube', 'to_world': mi.ScalarTransform4f().translate([1.5, 0, 0]),
-                       'bsdf': _dielectric(1.6, AIR)}}
+                       'bsdf': dielectric(1.6)}}
     scene = reneus_scene(RES, shapes=apart)
     with pytest.raises(ReneusError, match=r"interfaces \('(left|right)'; '(left|right)'\) do not nest one inside the other"):
         scene.integrator().bind(scene)
