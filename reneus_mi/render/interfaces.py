@@ -31,9 +31,22 @@ from reneus_mi.utils.errors import ReneusError
 _MAX_CROSSINGS = 64
 #: A direction no container face is parallel to, for the crossing counts.
 _PROBE = np.array([0.3147, 0.4721, 0.8238]) / np.linalg.norm([0.3147, 0.4721, 0.8238])
-#: Directions from an interface's centre to points on it, for the nesting test.
-_SPOKES = np.concatenate([np.eye(3), -np.eye(3), np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
-                          / np.sqrt(3.0)])
+
+
+def _spokes() -> np.ndarray:
+    """14 directions around the sphere (the axes and the diagonals), turned off the axes: a ray
+    along an axis meets a box's face on the diagonal between its two triangles, where a ray
+    tracer may let it through."""
+    d = np.concatenate([np.eye(3), -np.eye(3), np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+                        / np.sqrt(3.0)])
+    a, b = 0.1234, 0.2345
+    turn = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]) @ \
+        np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+    return d @ turn.T
+
+
+#: Directions from an interface's centre to points on it, for the nesting and closedness tests.
+_SPOKES = _spokes()
 
 
 @dataclass(frozen=True)
@@ -77,10 +90,15 @@ def interfaces_of(shapes: list) -> Interfaces:
         members[keys.index(key)].append(k)
     scenes = [scene_of([shapes[k] for k in m]) for m in members]
     names = [', '.join(f"'{shapes[k].id()}'" for k in m) for m in members]
-    # Interface b lies inside interface a when points on b are inside a.
+    # Interface b lies inside interface a when points on b are inside a; some but not all: they cut.
     points = [_points_on(scene, name) for scene, name in zip(scenes, names)]
-    inside = [[a != b and bool(_inside(scenes[a], points[b]).all()) for a in range(len(scenes))]
-              for b in range(len(scenes))]
+    inside = [[a != b and _inside(scenes[a], points[b]) for a in range(len(scenes))] for b in range(len(scenes))]
+    for b, row in enumerate(inside):
+        for a, within in enumerate(row):
+            if a != b and within.any() and not within.all():
+                raise ReneusError(f'reneus integrator: the interfaces {names[a]} and {names[b]} intersect; '
+                                  'expected one inside the other (a wall thinner than zero?)')
+    inside = [[bool(a != b and within.all()) for a, within in enumerate(row)] for b, row in enumerate(inside)]
     depth = [sum(row) for row in inside]
     order = sorted(range(len(scenes)), key=lambda g: depth[g])
     if [depth[g] for g in order] != list(range(len(order))):
@@ -123,19 +141,24 @@ def _inside(scene: mi.Scene, points: np.ndarray) -> np.ndarray:
 
 
 def _points_on(scene: mi.Scene, name: str) -> np.ndarray:
-    """Points on an interface, seen from its centre along :data:`_SPOKES`, moved a hair inward."""
+    """Points on an interface, seen from its centre along :data:`_SPOKES`, moved a hair inward;
+    checked: every spoke meets it (it is closed around its centre) from inside (its normals
+    point out of the space it encloses, as Mitsuba's ``dielectric`` takes its interior)."""
     bbox = scene.bbox()
     c = np.array(bbox.center(), np.float64)
     size = float(np.max(np.array(bbox.extents())))
     d = _SPOKES
+    rays = mi.Vector3f(*(mi.Float(d[:, i].astype(np.float32)) for i in range(3)))
     si = scene.ray_intersect(mi.Ray3f(mi.Point3f(*(mi.Float(np.full(len(d), c[i], np.float32)) for i in range(3))),
-                                      mi.Vector3f(*(mi.Float(d[:, i].astype(np.float32)) for i in range(3)))))
-    valid = np.array(si.is_valid())
-    if not valid.any():
-        raise ReneusError(f'reneus integrator: interface {name}: no ray from its centre meets it; expected a '
-                          'closed surface around its centre')
-    t = np.array(si.t, np.float64)[valid]
-    return c + d[valid] * (t - 1e-4 * size)[:, None]
+                                      rays))
+    if not np.all(np.array(si.is_valid())):
+        raise ReneusError(f'reneus integrator: interface {name} is not closed: a ray from its centre leaves '
+                          'without crossing it; expected a closed surface around the space it holds')
+    if not np.all(np.array(dr.dot(rays, si.n)) > 0.0):
+        raise ReneusError(f'reneus integrator: interface {name} has normals that point into the space it '
+                          'holds; expected them out of it (flip its faces), as dielectric reads int_ior inside')
+    t = np.array(si.t, np.float64)
+    return c + d * (t - 1e-4 * size)[:, None]
 
 
 def medium_absorption(shape, side: str = 'interior') -> tuple[float, float, float] | None:

@@ -155,3 +155,24 @@ def test_tinted_jar_in_uniform_light_follows_the_empty_container():
                                                          terminal=terminal)) - mean).mean()
              for terminal in ('trace', 'ambient')}
     assert error['trace'] < 0.01 and error['ambient'] > 2 * error['trace'], error
+
+
+def _flipped(shape: dict) -> dict:
+    return {**shape, 'flip_normals': True}
+
+
+@pytest.mark.parametrize('change, expected', [
+    (lambda shapes: {**shapes, 'case_inner': _flipped(shapes['case_inner'])},
+     ("interface 'case_inner'", 'normals that point into the space it holds', 'flip its faces')),
+    (lambda shapes: {k: v for k, v in shapes.items() if k != 'jar_liquid_top'},
+     ("'jar_liquid_wall', 'jar_liquid_bottom'", 'is not closed')),
+    (lambda shapes: {**shapes, 'case_inner': {**shapes['case_inner'],
+                                              'to_world': mi.ScalarTransform4f().translate([0.3, 0, 0]).scale(0.5)}},
+     ("'case_outer'", "'case_inner'", 'intersect', 'expected one inside the other')),
+], ids=['inner_normals_inward', 'open_liquid', 'walls_cut'])
+def test_containers_the_integrator_refuses(change, expected):
+    base = jar() if 'jar' in expected[0] else case()
+    scene = reneus_scene(RES, shapes=change(base))
+    with pytest.raises(ReneusError) as e:
+        scene.integrator().bind(scene)
+    assert all(part in str(e.value) for part in expected), str(e.value)
