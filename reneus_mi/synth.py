@@ -9,10 +9,10 @@ import argparse
 import os
 import sys
 
-from reneus_mi.data.objects import OBJECTS
 from reneus_mi.config import AMBIENT, IOR
-from reneus_mi.data.synth import DEFAULT_MAX_DEPTH, DEFAULT_SPP, SUBSETS, make_dataset
-from reneus_mi.geometry.shapes import CONTAINERS
+from reneus_mi.data.objects import OBJECTS
+from reneus_mi.data.synth import (DEFAULT_MAX_DEPTH, DEFAULT_SPP, LIQUID_IOR, SUBSETS, SYNTH_CONTAINERS, WALL,
+                                  make_dataset)
 from reneus_mi.utils import interrupt
 from reneus_mi.utils.errors import exit_on_error
 
@@ -37,9 +37,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--margin', type=float, default=0.15,
                         help="glass around the object, as a fraction of the object's largest "
                              'half-extent (default 0.15)')
-    parser.add_argument('--container', choices=CONTAINERS, default='box',
-                        help='glass around the object: a block, a block with rounded edges or a '
-                             'cylinder jar (default box)')
+    parser.add_argument('--container', choices=SYNTH_CONTAINERS, default='box',
+                        help='glass around the object: a solid block, a block with rounded edges or a '
+                             'cylinder; a glass case around air, a jar of liquid, an amber block (default box)')
+    parser.add_argument('--wall', type=float, default=WALL,
+                        help="a case's or a jar's glass, as a fraction of the object's largest half-extent "
+                             f'(default {WALL})')
+    parser.add_argument('--liquid-ior', type=float, default=LIQUID_IOR,
+                        help=f"IOR of a jar's liquid (default {LIQUID_IOR}: ethanol)")
     parser.add_argument('--ior', type=float, default=IOR, help=f'IOR of the glass (default {IOR})')
     parser.add_argument('--absorption', type=float, nargs='+', metavar='SIGMA',
                         help='the glass absorbs (amber, tinted resin): one coefficient or R G B, per '
@@ -54,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         result = make_dataset(args.object, args.out, views=args.views, res=args.res,
                               spp=args.spp, seed=args.seed, max_depth=args.max_depth,
                               subsets=args.subsets, margin=args.margin, container=args.container,
-                              ior=args.ior, ambient=args.ambient, absorption=args.absorption)
+                              ior=args.ior, ambient=args.ambient, absorption=args.absorption,
+                              wall=args.wall, liquid_ior=args.liquid_ior)
     print(f"wrote {os.path.abspath(args.out)}: {args.views} views at {args.res}x{args.res}, "
           f"{result['spp']} spp, max_depth {result['max_depth']}, noise (per-pixel std inside "
           f"the box, display units) {result['noise']:.4f}, {result['seconds']:.0f} s")

@@ -15,6 +15,11 @@ neither format has a field for are stored under the same JSON keys in both:
 - ``"absorption"``: the absorption coefficient of the container's medium (amber, tinted
   resin), per unit of the world coordinates (one number or RGB, >= 0), which the scene
   writer gives the container as its interior medium;
+- ``"containers"``: a container of nested interfaces (a display case, a jar of alcohol), outermost
+  first, each ``{"mesh": FILE, "int_ior": N, "ext_ior": N, "absorption": RGB}`` as Mitsuba's
+  ``dielectric`` and ``homogeneous`` medium state them: the first is ``mesh_outside`` (with
+  ``IOR`` its int_ior, ``absorption`` its medium's), each ``ext_ior`` the ``int_ior`` of the one
+  around it (1 for the first), ``absorption`` optional;
 - ``"capture"``: what ``reneus_mi.capture`` knows of the world (:mod:`reneus_mi.capture.export`):
   ``units`` and ``frame`` of the coordinates, and ``board``, the printed board the container
   stands on (:class:`PrintedBoard`), which the scene writer puts into the scene.
@@ -43,6 +48,17 @@ from reneus_mi.utils.errors import ReneusError
 #: board's origin; with 0.01 mm the rays leaving the glass through its bottom started beyond
 #: the board and saw the tent below it.
 CONTACT_GAP = 0.1
+
+
+@dataclasses.dataclass(frozen=True)
+class InnerInterface:
+    """An interface inside the container's outer one (``containers`` in transforms.json)."""
+    #: Path of its closed mesh (world coordinates).
+    mesh: str
+    #: The IOR inside it (the one outside is that inside the interface around it).
+    ior: float
+    #: The absorption inside it (RGB per world unit), if any.
+    absorption: np.ndarray | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,6 +121,9 @@ class Dataset:
     ambient: np.ndarray | None = None
     #: Absorption coefficient of the container's medium (RGB, per world unit), if it has one.
     absorption: np.ndarray | None = None
+    #: The interfaces inside the container's outer one, outermost first (a case's inner faces,
+    #: a jar's liquid): each with the IOR and the absorption inside it.
+    inner: tuple[InnerInterface, ...] = ()
     #: Whether the masks were read from files (segmented photographs) rather than projected
     #: from the container mesh: only such masks say where the container really is.
     masks_measured: bool = False
@@ -221,16 +240,8 @@ def read_extras(meta: dict, root: str, where: str) -> dict:
     if meta.get('IOR') is not None:
         out['ior'] = check_ior(meta['IOR'], where)
     for key, field in (('mesh_outside', 'container'), ('mesh_inside', 'gt_mesh')):
-        rel = meta.get(key)
-        if rel is None:
-            continue
-        if not isinstance(rel, str):
-            raise ReneusError(f"{where}: '{key}' must be a path string, got {rel!r}")
-        path = os.path.normpath(os.path.join(root, rel))
-        mesh_type(path)
-        if not os.path.isfile(path):
-            raise ReneusError(f"{where}: '{key}' names {path}, which does not exist")
-        out[field] = path
+        if meta.get(key) is not None:
+            out[field] = _mesh_path(meta[key], root, f"{where}: '{key}'")
     if 'scale_mat' in meta:
         scale_mat = np.asarray(meta['scale_mat'], dtype=np.float64)
         if scale_mat.shape != (4, 4):
@@ -242,9 +253,64 @@ def read_extras(meta: dict, root: str, where: str) -> dict:
     if meta.get('absorption') is not None:
         out['absorption'] = _rgb(meta['absorption'], lambda v: v >= 0, f"{where}: 'absorption'",
                                  'an absorption coefficient >= 0 per world unit (one number or RGB)')
+    if meta.get('containers') is not None:
+        out.update(_read_containers(meta['containers'], out, root, f"{where}: 'containers'"))
     if meta.get('capture') is not None:
         out.update(_read_capture(meta['capture'], root, f'{where}: capture'))
     return out
+
+
+def _mesh_path(rel, root: str, where: str) -> str:
+    if not isinstance(rel, str):
+        raise ReneusError(f"{where} must be a path string, got {rel!r}")
+    path = os.path.normpath(os.path.join(root, rel))
+    mesh_type(path)
+    if not os.path.isfile(path):
+        raise ReneusError(f"{where} names {path}, which does not exist")
+    return path
+
+
+def _ior(value, where: str) -> float:
+    """An IOR on one side of an inner interface: air (1) allowed, as in a display case."""
+    if value == 1.0 and not isinstance(value, bool):
+        return 1.0
+    return check_ior(value, where)
+
+
+def _read_containers(entries, outer: dict, root: str, where: str) -> dict:
+    """The container's interfaces (see the module docstring), checked against ``outer`` (the
+    keys already read: ``mesh_outside``, ``IOR``, ``absorption`` describe the first)."""
+    if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
+        raise ReneusError(f'{where}: expected a list of interfaces, outermost first, each '
+                          '{"mesh", "int_ior", "ext_ior", "absorption"}')
+    read, outside = [], 1.0
+    for i, entry in enumerate(entries):
+        at = f'{where}[{i}]'
+        unknown = set(entry) - {'mesh', 'int_ior', 'ext_ior', 'absorption'}
+        if unknown or 'mesh' not in entry or 'int_ior' not in entry:
+            raise ReneusError(f"{at}: keys {sorted(entry)}; expected 'mesh', 'int_ior', optionally 'ext_ior' "
+                              "and 'absorption'")
+        mesh = _mesh_path(entry['mesh'], root, f'{at}.mesh')
+        inside = _ior(entry['int_ior'], f'{at}.int_ior')
+        ext = _ior(entry.get('ext_ior', outside), f'{at}.ext_ior')
+        if abs(ext - outside) > 1e-6:
+            raise ReneusError(f'{at}: ext_ior {ext:g}, but the IOR around it is {outside:g} '
+                              f"({'air' if i == 0 else f'containers[{i - 1}].int_ior'}); expected the same")
+        absorption = None if entry.get('absorption') is None else _rgb(
+            entry['absorption'], lambda v: v >= 0, f'{at}.absorption',
+            'an absorption coefficient >= 0 per world unit (one number or RGB)')
+        read.append((mesh, inside, absorption))
+        outside = inside
+    mesh, ior, absorption = read[0]
+    for key, given, value in (('mesh_outside', outer.get('container'), mesh), ('IOR', outer.get('ior'), ior)):
+        if given is not None and given != value:
+            raise ReneusError(f"{where}[0]: {value!r}, but '{key}' says {given!r}; expected the same")
+    if outer.get('absorption') is not None:
+        if absorption is not None and not np.allclose(outer['absorption'], absorption):
+            raise ReneusError(f"{where}[0].absorption differs from 'absorption'; expected the same")
+        absorption = outer['absorption']
+    return {'container': mesh, 'ior': ior, 'absorption': absorption,
+            'inner': tuple(InnerInterface(m, n, a) for m, n, a in read[1:])}
 
 
 def _rgb(value, ok, where: str, expected: str) -> np.ndarray:
@@ -296,14 +362,30 @@ def write_extras(ds: Dataset, out_dir: str) -> dict:
         meta['absorption'] = np.asarray(ds.absorption, np.float64).tolist()
     for key, path, stem in (('mesh_outside', ds.container, 'container'),
                             ('mesh_inside', ds.gt_mesh, 'gt_mesh')):
-        if path is None:
-            continue
-        name = stem + os.path.splitext(path)[1].lower()
-        target = os.path.join(out_dir, name)
-        if not (os.path.exists(target) and os.path.samefile(path, target)):
-            shutil.copyfile(path, target)
-        meta[key] = name
+        if path is not None:
+            meta[key] = _copy_into(path, out_dir, stem)
+    if ds.inner:
+        outer = {'mesh': meta['mesh_outside'], 'int_ior': float(ds.ior), 'ext_ior': 1.0}
+        if ds.absorption is not None:
+            outer['absorption'] = meta['absorption']
+        meta['containers'], outside = [outer], float(ds.ior)
+        for i, interface in enumerate(ds.inner):
+            entry = {'mesh': _copy_into(interface.mesh, out_dir, f'container_inner_{i + 1}'),
+                     'int_ior': float(interface.ior), 'ext_ior': outside}
+            if interface.absorption is not None:
+                entry['absorption'] = np.asarray(interface.absorption, np.float64).tolist()
+            meta['containers'].append(entry)
+            outside = float(interface.ior)
     return meta
+
+
+def _copy_into(path: str, out_dir: str, stem: str) -> str:
+    """Copy a mesh into ``out_dir`` as ``stem`` with its extension; return its new name."""
+    name = stem + os.path.splitext(path)[1].lower()
+    target = os.path.join(out_dir, name)
+    if not (os.path.exists(target) and os.path.samefile(path, target)):
+        shutil.copyfile(path, target)
+    return name
 
 
 def check_writable(ds: Dataset, out_dir: str) -> None:
@@ -327,7 +409,7 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
              need_container: bool, container: str | None = None, ior: float | None = None,
              gt_mesh: str | None = None, scale_mat: np.ndarray | None = None,
              ambient: np.ndarray | None = None, absorption: np.ndarray | None = None,
-             board: PrintedBoard | None = None, units: str | None = None, frame: str | None = None, mask_sources: list[str] | None = None) -> Dataset:
+             inner: tuple[InnerInterface, ...] = (), board: PrintedBoard | None = None, units: str | None = None, frame: str | None = None, mask_sources: list[str] | None = None) -> Dataset:
     """Check what a reader found and build the :class:`Dataset`.
 
     ``files`` are the image paths (for messages); ``masks`` may hold None for
@@ -347,6 +429,8 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
     if container is None and need_container:
         raise ReneusError(f"{meta_file}: dataset has no container mesh "
                          "(expected a 'mesh_outside' entry naming its mesh file)")
+    for interface in inner:
+        load_container(interface.mesh)
     if container is not None:
         check_views(load_container(container), np.asarray(K), np.asarray(c2w), height, width,
                     files, {i: m for i, m in enumerate(masks) if m is not None}, mask_sources, name=container)
@@ -361,7 +445,7 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
     ds = Dataset(images=np.stack(images).astype(np.float32, copy=False), masks=np.stack(masks),
                  K=np.asarray(K, np.float64), c2w=np.asarray(c2w, np.float64), names=list(names),
                  root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat,
-                 ambient=ambient, absorption=absorption, masks_measured=not missing, board=board,
+                 ambient=ambient, absorption=absorption, inner=inner, masks_measured=not missing, board=board,
                  units=units, frame=frame)
     ds.validate()
     return ds

@@ -200,15 +200,16 @@ def load_object(name_or_path: str | os.PathLike) -> trimesh.Trimesh:
 
 
 def normalize(mesh: trimesh.Trimesh, margin: float = 0.15, radius: float = 0.95,
-              container: str = 'box') -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
+              container: str = 'box', wall: float = 0.0) -> tuple[trimesh.Trimesh, trimesh.Trimesh, trimesh.Trimesh | None]:
     """Centre ``mesh``, fit a container around it and scale both into a sphere.
 
     The container (:func:`~reneus_mi.geometry.shapes.container_mesh`) is fitted to the object's bounding
     box grown on every side by ``margin`` times the object's largest
-    half-extent (so a flat object still sits in a thick slab of glass); its
-    farthest point then lies on the sphere of ``radius`` (< 1: everything inside
-    the unit sphere). Returns ``(object, container)``, new meshes; the container
-    is watertight with outward normals.
+    half-extent (so a flat object still sits in a thick slab of glass); with ``wall`` (a
+    fraction of the same) that is the inside of a wall that thick around it (a case's air, a
+    jar's liquid). The container's farthest point then lies on the sphere of ``radius``
+    (< 1: everything inside the unit sphere). Returns ``(object, container, inside)``, new
+    meshes (``inside`` None without a wall); the containers are watertight with outward normals.
     """
     if not 0.0 <= margin:
         raise ReneusError(f"margin={margin}: expected a non-negative fraction of the object's size")
@@ -216,13 +217,17 @@ def normalize(mesh: trimesh.Trimesh, margin: float = 0.15, radius: float = 0.95,
         raise ReneusError(f"radius={radius}: expected a value in (0, 1]")
     lo, hi = mesh.bounds
     center, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    box = container_mesh(container, half + margin * half.max())
+    fitted = half + margin * half.max()
+    box = container_mesh(container, fitted, grow=wall * half.max())
+    inside = container_mesh(container, fitted) if wall > 0 else None
     scale = radius / np.linalg.norm(box.vertices, axis=1).max()
     obj = mesh.copy()
     obj.apply_translation(-center)
     obj.apply_scale(scale)
-    normals = box.vertex_normals.copy() if container != 'box' else None
-    box.apply_scale(scale)
-    if normals is not None:
-        box.vertex_normals = normals
-    return obj, box
+    for shape in (box, inside):
+        if shape is not None:
+            normals = shape.vertex_normals.copy() if container != 'box' else None
+            shape.apply_scale(scale)
+            if normals is not None:
+                shape.vertex_normals = normals
+    return obj, box, inside

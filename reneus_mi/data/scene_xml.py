@@ -99,6 +99,23 @@ def _prop(parent: ET.Element, name: str, value) -> None:
                          f"or str, got {type(value).__name__}")
 
 
+def _interface(scene: ET.Element, name: str, shape_type: str, filename: str, int_ior: float, ext_ior: float,
+               absorption) -> None:
+    """One of the container's interfaces: its mesh, a dielectric of its two IORs, and its interior
+    medium where it absorbs."""
+    shape = ET.SubElement(scene, 'shape', type=shape_type, id=name)
+    ET.SubElement(shape, 'string', name='filename', value=filename)
+    bsdf = ET.SubElement(shape, 'bsdf', type='dielectric')
+    ET.SubElement(bsdf, 'float', name='int_ior', value=_num(int_ior))
+    ET.SubElement(bsdf, 'float', name='ext_ior', value=_num(ext_ior))
+    if absorption is not None:
+        medium = absorbing_medium(absorption)
+        element = ET.SubElement(shape, 'medium', type=medium['type'], name='interior')
+        for key in ('albedo', 'scale'):
+            ET.SubElement(element, 'float', name=key, value=_num(medium[key]))
+        ET.SubElement(element, 'rgb', name='sigma_t', value=', '.join(map(_num, medium['sigma_t']['value'])))
+
+
 def _relative(path: str, xml_dir: str) -> str:
     try:
         return os.path.relpath(path, xml_dir)
@@ -166,18 +183,13 @@ def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient:
     ET.SubElement(emitter, 'rgb', name='radiance', value=', '.join(map(_num, np.broadcast_to(ambient, (3,)))))
 
     if container is not None:
-        shape = ET.SubElement(scene, 'shape', type=shape_type, id='container')
-        ET.SubElement(shape, 'string', name='filename', value=_relative(container, xml_dir))
-        bsdf = ET.SubElement(shape, 'bsdf', type='dielectric')
-        ET.SubElement(bsdf, 'float', name='int_ior', value=_num(ior))
         # The paper's outside medium is air with an index of exactly 1.
-        ET.SubElement(bsdf, 'float', name='ext_ior', value='1.0')
-        if ds.absorption is not None:
-            medium = absorbing_medium(ds.absorption)
-            element = ET.SubElement(shape, 'medium', type=medium['type'], name='interior')
-            for name in ('albedo', 'scale'):
-                ET.SubElement(element, 'float', name=name, value=_num(medium[name]))
-            ET.SubElement(element, 'rgb', name='sigma_t', value=', '.join(map(_num, medium['sigma_t']['value'])))
+        _interface(scene, 'container', shape_type, _relative(container, xml_dir), ior, 1.0, ds.absorption)
+        outside = ior
+        for i, inner in enumerate(ds.inner):
+            _interface(scene, f'container_inner_{i + 1}', mesh_type(inner.mesh), _relative(inner.mesh, xml_dir),
+                       inner.ior, outside, inner.absorption)
+            outside = inner.ior
 
     if board is not None:
         shape = ET.SubElement(scene, 'shape', type='rectangle', id='board')

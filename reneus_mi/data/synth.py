@@ -15,6 +15,7 @@ Output of ``make_dataset(obj, DIR)``::
                           ``vertex_color`` (Mitsuba's name; trimesh reads the geometry)
     DIR/box.ply           the container, as most tools write one: shared vertices, no normals
                           for a box, exact vertex normals for the rounded block and the jar
+    DIR/inner.ply         a case's or a jar's inner surface (the air's, the liquid's)
     DIR/box/, DIR/nobox/  Blender format, with scene.xml (reneus_mi.data.scene_xml.write_scene)
     DIR/box_neus/, DIR/nobox_neus/   the same in NeuS format
     DIR/synth.json        settings, spp, max_depth and the measured noise
@@ -35,12 +36,13 @@ from tqdm import tqdm
 
 from reneus_mi.config import AMBIENT, GAMMA, IOR
 from reneus_mi.data import Dataset, load_dataset, write_dataset
+from reneus_mi.data.dataset import InnerInterface
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.data.masks import container_masks
 from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 from reneus_mi.geometry.container import container_shape, shading_mesh
-from reneus_mi.geometry.shapes import write_container
+from reneus_mi.geometry.shapes import CONTAINERS, write_container
 from reneus_mi.render.interfaces import absorbing_medium
 from reneus_mi.utils import guards, limits
 from reneus_mi.utils.errors import ReneusError
@@ -56,6 +58,18 @@ DEFAULT_SPP = 256
 DEFAULT_MAX_DEPTH = 12
 #: Subsets a dataset can have.
 SUBSETS = ('box', 'nobox')
+#: Containers as collections hold them, by the shape each is made of: a glass case (a box's
+#: walls around air), a jar (a cylinder's glass around a liquid), amber (a block that absorbs).
+COLLECTION_SHAPES = {'case': 'box', 'jar': 'cylinder', 'amber': 'box'}
+#: Every container the generator makes: the solid shapes and those of collections.
+SYNTH_CONTAINERS = CONTAINERS + tuple(COLLECTION_SHAPES)
+#: A case's or a jar's glass, as a fraction of the object's largest half-extent.
+WALL = 0.1
+#: A jar's liquid (ethanol, as wet collections keep specimens).
+LIQUID_IOR = 1.36
+#: Amber's absorption per unit of the normalised scene: about 74 %, 50 % and 25 % of red, green
+#: and blue cross the container.
+AMBER = (0.15, 0.35, 0.7)
 #: The embedded demo: object, dataset size and preset.
 DEMO_OBJECT = 'insect'
 DEMO_DATA = {'views': 32, 'res': 64, 'spp': 128}
@@ -100,19 +114,29 @@ def _sensor(K: np.ndarray, c2w: np.ndarray, res: int) -> mi.Sensor:
     return mi.load_dict(desc)
 
 
-def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_DEPTH, *,
-               ior: float = IOR, ambient: float = AMBIENT, absorption=None) -> dict:
-    """The Mitsuba scene: object (diffuse, vertex-colour albedo), glass container, environment.
+@dataclasses.dataclass(frozen=True)
+class Layer:
+    """One interface of a generated container, outermost first: its file, the IOR inside it
+    and what the space inside absorbs (RGB per unit; None: clear)."""
+    path: str
+    ior: float
+    absorption: np.ndarray | None = None
 
-    The container bends light by the normals the ``reneus`` integrator gives its file
-    (:func:`~reneus_mi.geometry.container.shading_mesh`): flat faces stay flat. With
-    ``absorption`` (RGB per unit) it is filled with a medium that absorbs (amber), and
-    ``volpath`` renders it."""
+
+def scene_dict(gt_mesh: str, layers: list[Layer], max_depth: int = DEFAULT_MAX_DEPTH, *,
+               ambient: float = AMBIENT) -> dict:
+    """The Mitsuba scene: object (diffuse, vertex-colour albedo), the container's ``layers``
+    (none: the object alone), environment.
+
+    The container bends light by the normals the ``reneus`` integrator gives its files
+    (:func:`~reneus_mi.geometry.container.shading_mesh`): flat faces stay flat. A layer that
+    absorbs holds a medium (amber, a tinted liquid), and ``volpath`` renders the scene."""
+    absorbs = any(layer.absorption is not None for layer in layers)
     scene = {
         'type': 'scene',
         # Russian roulette off: it would add noise to exactly the long paths
         # through the glass that the dataset is about.
-        'integrator': {'type': 'path' if absorption is None else 'volpath', 'max_depth': max_depth,
+        'integrator': {'type': 'volpath' if absorbs else 'path', 'max_depth': max_depth,
                        'rr_depth': max_depth},
         'environment': {'type': 'constant',
                         'radiance': {'type': 'rgb', 'value': [ambient] * 3}},
@@ -120,9 +144,12 @@ def scene_dict(gt_mesh: str, box_mesh: str | None, max_depth: int = DEFAULT_MAX_
                    'bsdf': {'type': 'diffuse', 'reflectance': {
                        'type': 'mesh_attribute', 'name': 'vertex_color'}}},
     }
-    if box_mesh is not None:
-        scene['box'] = shading_mesh(box_mesh, bsdf={'type': 'dielectric', 'int_ior': ior, 'ext_ior': 1.0},
-                                    interior=None if absorption is None else absorbing_medium(absorption))
+    outside = 1.0
+    for i, layer in enumerate(layers):
+        scene[f'container_{i}'] = shading_mesh(
+            layer.path, bsdf={'type': 'dielectric', 'int_ior': layer.ior, 'ext_ior': outside},
+            interior=None if layer.absorption is None else absorbing_medium(layer.absorption))
+        outside = layer.ior
     return scene
 
 
@@ -171,15 +198,19 @@ def _noise(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
 def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int = DEFAULT_SPP,
                  seed: int = 0, max_depth: int = DEFAULT_MAX_DEPTH, subsets=SUBSETS,
                  margin: float = 0.15, container: str = 'box', ior: float = IOR,
-                 ambient: float = AMBIENT, absorption=None, write: bool = True) -> dict:
+                 ambient: float = AMBIENT, absorption=None, wall: float = WALL,
+                 liquid_ior: float = LIQUID_IOR, write: bool = True) -> dict:
     """Render a synthetic dataset of ``obj`` into ``out_dir``.
 
     ``obj`` is a name of :data:`reneus_mi.data.objects.OBJECTS`, a mesh file or a
     :class:`trimesh.Trimesh` with vertex colours; it is centred and scaled with
     its container by :func:`reneus_mi.data.objects.normalize` (``margin``,
-    ``container``: ``box``, ``rounded`` or ``cylinder``). The glass has IOR
-    ``ior`` and absorbs ``absorption`` (RGB per unit of the normalised scene, whose
-    container is about 2 across; None: clear), the environment radiance ``ambient``. ``seed`` fixes
+    ``container``: a solid ``box``, ``rounded`` block or ``cylinder``; or a glass ``case``
+    around air, a ``jar`` of liquid of IOR ``liquid_ior``, whose glass is ``wall`` thick
+    (a fraction of the object's largest half-extent), an ``amber`` block). The glass has IOR
+    ``ior``; the medium around the object absorbs ``absorption`` (RGB per unit of the
+    normalised scene, whose container is about 2 across; None: clear, :data:`AMBER` for
+    amber), the environment radiance ``ambient``. ``seed`` fixes
     the cameras and the sample streams. ``gt.ply``, ``box.ply`` and
     ``synth.json`` are always written; with ``write`` each subset is written in
     the Blender and NeuS formats with a scene XML (see the module docstring).
@@ -216,21 +247,32 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     mesh = obj.copy() if isinstance(obj, trimesh.Trimesh) else load_object(obj)
     if mesh.visual.kind != 'vertex':
         raise ReneusError("object mesh: expected per-vertex colours (mesh.visual.vertex_colors)")
-    mesh, box = normalize(mesh, margin=margin, container=container)
+    if container not in SYNTH_CONTAINERS:
+        raise ReneusError(f"container={container!r}: expected one of {', '.join(SYNTH_CONTAINERS)}")
+    shape = COLLECTION_SHAPES.get(container, container)
+    walled = container in ('case', 'jar')
+    if container == 'amber' and absorption is None:
+        absorption = np.array(AMBER)
+    mesh, box, inside = normalize(mesh, margin=margin, container=shape, wall=wall if walled else 0.0)
 
     # Made in a temporary folder that becomes out_dir once whole: an interrupted or failed
     # run leaves nothing behind, and the same command starts it again.
     with atomic_folder(out_dir) as work:
-        rendered = _render(work, mesh, box, K, c2w, res=res, spp=spp, seed=seed, max_depth=max_depth,
-                           subsets=subsets, container=container, ior=ior, ambient=ambient,
-                           absorption=absorption)
-        images, masks, gt_path, box_path, noise = rendered
-        paths = _write_subsets(images, masks, K, c2w, gt_path, box_path, work, out_dir, ior,
-                               ambient, absorption) if write else {}
+        layers = [Layer(os.path.join(work, 'box.ply'), ior, None if walled else absorption)]
+        write_container(box, layers[0].path, normals=shape != 'box')
+        if walled:
+            layers.append(Layer(os.path.join(work, 'inner.ply'), 1.0 if container == 'case' else liquid_ior,
+                                absorption))
+            write_container(inside, layers[1].path, normals=shape != 'box')
+        rendered = _render(work, mesh, layers, K, c2w, res=res, spp=spp, seed=seed, max_depth=max_depth,
+                           subsets=subsets, ambient=ambient)
+        images, masks, gt_path, noise = rendered
+        paths = _write_subsets(images, masks, K, c2w, gt_path, layers, work, out_dir, ambient) if write else {}
         meta = {'object': 'trimesh' if isinstance(obj, trimesh.Trimesh) else os.fspath(obj),
                 'views': views, 'res': res, 'spp': spp, 'max_depth': max_depth, 'seed': seed,
                 'margin': margin, 'container': container, 'ior': ior, 'environment': ambient,
                 'absorption': None if absorption is None else absorption.tolist(),
+                'wall': wall if walled else None, 'liquid_ior': liquid_ior if container == 'jar' else None,
                 'gamma': GAMMA, 'camera_distance': CAMERA_DISTANCE, 'noise_std_display': noise,
                 'subsets': list(subsets), 'seconds': time.perf_counter() - start,
                 'paths': {sub: {fmt: os.path.relpath(folder, out_dir) for fmt, folder in p.items()}
@@ -242,24 +284,22 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
             'seconds': meta['seconds']}
 
 
-def _render(folder, mesh, box, K, c2w, *, res, spp, seed, max_depth, subsets, container, ior, ambient,
-            absorption):
-    """Write the object and its container into ``folder`` and render every subset: the display
-    images by subset, the box masks, the two mesh files and the noise of one image."""
+def _render(folder, mesh, layers, K, c2w, *, res, spp, seed, max_depth, subsets, ambient):
+    """Write the object into ``folder`` and render every subset through the container's
+    ``layers``: the display images by subset, the container's masks, the object's file and the
+    noise of one image."""
     views = len(K)
-    gt_path, box_path = os.path.join(folder, 'gt.ply'), os.path.join(folder, 'box.ply')
+    gt_path = os.path.join(folder, 'gt.ply')
     write_object(mesh, gt_path)
-    write_container(box, box_path, normals=container != 'box')
 
-    masks = container_masks(box_path, K, c2w, res, res)
+    masks = container_masks(layers[0].path, K, c2w, res, res)
     # Seeds of renders are spaced by this stride so that no two renders (views,
     # passes, subsets, the noise probe) share a sample stream.
     stride = max(1, -(-res * res * spp // _MAX_LANES))
     base = seed * (len(SUBSETS) + 1) * (views + 1) * stride
     images, noise = {}, None
     for s, subset in enumerate(subsets):
-        scene = mi.load_dict(scene_dict(gt_path, box_path if subset == 'box' else None, max_depth,
-                                        ior=ior, ambient=ambient, absorption=absorption))
+        scene = mi.load_dict(scene_dict(gt_path, layers if subset == 'box' else [], max_depth, ambient=ambient))
         first = base + s * (views + 1) * stride
         linear = [render_view(scene, K[v], c2w[v], res, spp, first + v * stride)
                   for v in tqdm(range(views), desc=f'render {subset}', unit='view', disable=None)]
@@ -267,7 +307,7 @@ def _render(folder, mesh, box, K, c2w, *, res, spp, seed, max_depth, subsets, co
         if noise is None:
             again = encode(render_view(scene, K[0], c2w[0], res, spp, first + views * stride))
             noise = _noise(images[subset][0], again, masks[0])
-    return images, masks, gt_path, box_path, noise
+    return images, masks, gt_path, noise
 
 
 def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, absorption=None, offset=None,
@@ -314,7 +354,7 @@ def dataset_bytes(views: int, res: int, subsets: int) -> int:
     return pixels * (subsets * (3 * 4 * 3) + 1) + res * res * (3 * 8 + 3 * 4)
 
 
-def _write_subsets(images, masks, K, c2w, gt_path, box_path, folder, out_dir, ior, ambient, absorption) -> dict:
+def _write_subsets(images, masks, K, c2w, gt_path, layers, folder, out_dir, ambient) -> dict:
     """Write every subset in both formats, plus its scene XML, into ``folder`` (which becomes
     ``out_dir``); return the subsets' folders as they will be."""
     paths = {}
@@ -324,8 +364,10 @@ def _write_subsets(images, masks, K, c2w, gt_path, box_path, folder, out_dir, io
         ds = Dataset(images=imgs, masks=masks, K=K, c2w=c2w,
                      names=[f'r_{i:03d}' for i in range(len(imgs))],
                      root=os.path.join(folder, subset),
-                     container=box_path if with_box else None, ior=ior if with_box else None,
-                     absorption=absorption if with_box else None,
+                     container=layers[0].path if with_box else None, ior=layers[0].ior if with_box else None,
+                     absorption=layers[0].absorption if with_box else None,
+                     inner=tuple(InnerInterface(layer.path, layer.ior, layer.absorption) for layer in layers[1:])
+                     if with_box else (),
                      gt_mesh=gt_path, scale_mat=np.eye(4))
         paths[subset] = {'blender': os.path.join(out_dir, subset),
                          'neus': os.path.join(out_dir, f'{subset}_neus')}

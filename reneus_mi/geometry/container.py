@@ -308,13 +308,14 @@ def _parity(scene, origin, direction, max_hits):
 
 def check_scene_containers(scene: mi.Scene, where: str) -> None:
     """Every dielectric mesh of ``scene`` (the container) must be closed, face outward,
-    and be made of parts that do not overlap.
+    and be made of parts that do not overlap, or lie one inside the other as interfaces of
+    their own (a case's inner faces, a jar's liquid: another dielectric).
 
     This is the geometry Mitsuba traces, after the scene's transforms and
     ``flip_normals`` (and after Mitsuba merged shapes that share a BSDF): the
     check catches what the XML points to, whatever file the dataset names.
     """
-    parts = []
+    parts, etas = [], []
     for shape in scene.shapes():
         if not isinstance(shape, mi.Mesh) or not str(shape.bsdf()).startswith('SmoothDielectric'):
             continue
@@ -326,16 +327,20 @@ def check_scene_containers(scene: mi.Scene, where: str) -> None:
         check_container(mesh, f"{where}: shape '{shape.id() or 'container'}'")
         merged = mesh.copy()
         merged.merge_vertices()
-        parts += merged.split(only_watertight=False)
-    _check_disjoint(parts, where)
+        split = merged.split(only_watertight=False)
+        parts += split
+        etas += [round(float(mi.traverse(shape.bsdf())['eta']), 6)] * len(split)
+    _check_disjoint(parts, where, etas)
 
 
-def _check_disjoint(parts, where: str) -> None:
-    """Container parts may sit apart or one inside another as its cavity (inward
-    normals: a hollow vessel), never cut through each other or nest glass in glass,
-    where a ray would enter glass it is already in."""
+def _check_disjoint(parts, where: str, etas=None) -> None:
+    """Container parts may sit apart or one inside another as its cavity (inward normals:
+    a hollow vessel) or as an interface of its own (another dielectric, outward normals),
+    never cut through each other or nest glass in the same glass, where a ray would enter
+    glass it is already in."""
+    etas = etas or [None] * len(parts)
     for i, a in enumerate(parts):
-        for b in parts[i + 1:]:
+        for j, b in enumerate(parts[i + 1:], i + 1):
             if not (np.all(a.bounds[0] <= b.bounds[1]) and np.all(b.bounds[0] <= a.bounds[1])):
                 continue
             for inner, outer in ((a, b), (b, a)):
@@ -344,7 +349,8 @@ def _check_disjoint(parts, where: str) -> None:
                     outer.invert()
                 within = inside(_probes(inner), outer)
                 cavity = signed_volume(inner.vertices, inner.faces) < 0
-                if within.any() and not (within.all() and cavity):
+                nested = etas[i] != etas[j] and not cavity
+                if within.any() and not (within.all() and (cavity or nested)):
                     c = np.round(0.5 * (inner.bounds[0] + inner.bounds[1]), 3).tolist()
                     raise ReneusError(f'{where}: container parts overlap (the part centred at {c} '
                                       'reaches into another); expected disjoint parts, or a cavity '

@@ -66,27 +66,33 @@ def round_box(p, half, rounding):
     return outside + dr.minimum(dr.maximum(dr.maximum(q.x, q.y), q.z), 0.0) - rounding
 
 
-def container_mesh(kind: str, half) -> trimesh.Trimesh:
+def container_mesh(kind: str, half, grow: float = 0.0) -> trimesh.Trimesh:
     """A closed container about the origin around the box of half-extents ``half``.
 
     ``box`` is that box (flat faces); ``rounded`` the box with edges and corners
     rounded; ``cylinder`` the vertical (z) jar through the box's corners, its rims
     rounded. The smooth ones carry exact vertex normals (``vertex_normals``, from
-    their SDF), which the renderers use as shading normals.
+    their SDF), which the renderers use as shading normals. ``grow`` moves the surface
+    that far out everywhere (a box's faces, a smooth one's offset surface): the outside of
+    a wall that thick around the container of ``grow`` 0.
     """
     half = np.asarray(half, np.float64)
     if kind == 'box':
-        return trimesh.creation.box(extents=2.0 * half)
+        return trimesh.creation.box(extents=2.0 * (half + grow))
     if kind not in CONTAINERS:
         raise ReneusError(f"container={kind!r}: expected one of {', '.join(CONTAINERS)}")
     r = ROUNDING * half.min()
     if kind == 'rounded':
         # Rounding cuts into the box: grow it so the object's corners stay inside.
-        outer = half + r * (1.0 - 1.0 / np.sqrt(3.0))
-        def distance(p): return round_box(p, outer, float(r))
+        size = half + r * (1.0 - 1.0 / np.sqrt(3.0))
+        def surface(p): return round_box(p, size, float(r))
     else:
-        outer = np.array([np.hypot(half[0], half[1])] * 2 + [half[2] + r])
-        def distance(p): return round_cylinder(p, (0.0, 0.0, 0.0), float(outer[0]), float(outer[2]), float(r))
+        size = np.array([np.hypot(half[0], half[1])] * 2 + [half[2] + r])
+        def surface(p): return round_cylinder(p, (0.0, 0.0, 0.0), float(size[0]), float(size[2]), float(r))
+
+    def distance(p):
+        return surface(p) - grow
+    outer = size + grow
     pitch = 2.0 * outer.max() / CONTAINER_CELLS
     mesh = mesh_sdf(distance, -outer - 2 * pitch, outer + 2 * pitch, pitch)
     # Exact normals: the SDF's gradient (central differences) at the vertices.

@@ -416,6 +416,47 @@ def test_absorption_must_be_a_coefficient(written, tmp_path, absorption):
         load_dataset(str(folder))
 
 
+def _nested(written, tmp_path):
+    """The dataset as a glass case: its box, and a smaller box of air inside."""
+    folder = mutable(written, tmp_path, 'blender')
+    trimesh.creation.box(extents=np.array(BOX) * 0.8).export(folder / 'cavity.ply')
+    return folder
+
+
+def test_nested_containers_read_and_written(written, tmp_path):
+    folder = _nested(written, tmp_path)
+    _edit_json(folder / 'transforms.json', lambda m: m.update(containers=[
+        {'mesh': m['mesh_outside'], 'int_ior': 1.5, 'ext_ior': 1.0},
+        {'mesh': 'cavity.ply', 'int_ior': 1.0, 'ext_ior': 1.5, 'absorption': [0.0, 0.1, 0.2]}]))
+    ds = load_dataset(str(folder))
+    assert ds.ior == 1.5 and len(ds.inner) == 1
+    assert ds.inner[0].mesh == str(folder / 'cavity.ply') and ds.inner[0].ior == 1.0
+    assert np.array_equal(ds.inner[0].absorption, [0.0, 0.1, 0.2])
+    for fmt in ('blender', 'neus'):
+        back = load_dataset(write_dataset(ds, str(tmp_path / f'again_{fmt}'), fmt) or str(tmp_path / f'again_{fmt}'))
+        assert back.inner[0].ior == 1.0 and np.array_equal(back.inner[0].absorption, [0.0, 0.1, 0.2])
+        assert os.path.basename(back.inner[0].mesh) == 'container_inner_1.ply'
+
+
+@pytest.mark.parametrize('entries, message', [
+    (lambda m: [{'mesh': m['mesh_outside'], 'int_ior': 1.5}, {'mesh': 'cavity.ply', 'int_ior': 1.0, 'ext_ior': 1.33}],
+     r"'containers'\[1\]: ext_ior 1.33, but the IOR around it is 1.5 \(containers\[0\].int_ior\); expected the same"),
+    (lambda m: [{'mesh': m['mesh_outside'], 'int_ior': 1.6}],
+     r"'containers'\[0\]: 1.6, but 'IOR' says 1.5; expected the same"),
+    (lambda m: [{'mesh': m['mesh_outside'], 'int_ior': 1.5}, {'mesh': 'cavity.ply', 'int_ior': 1.0, 'absorption': -1}],
+     r"'containers'\[1\].absorption is -1; expected an absorption coefficient >= 0"),
+    (lambda m: [{'mesh': m['mesh_outside'], 'int_ior': 1.5}, {'mesh': 'missing.ply', 'int_ior': 1.0}],
+     r"'containers'\[1\].mesh names .*missing.ply, which does not exist"),
+    (lambda m: [{'mesh': m['mesh_outside'], 'ior': 1.5}],
+     r"'containers'\[0\]: keys \['ior', 'mesh'\]; expected 'mesh', 'int_ior'"),
+], ids=['ior_pair', 'outer_ior', 'negative_absorption', 'missing_mesh', 'unknown_key'])
+def test_nested_containers_refused_by_name(written, tmp_path, entries, message):
+    folder = _nested(written, tmp_path)
+    _edit_json(folder / 'transforms.json', lambda m: m.update(containers=entries(m)))
+    with pytest.raises(ValueError, match='transforms.json: ' + message):
+        load_dataset(str(folder))
+
+
 def test_matrix_messages_name_the_defect():
     from reneus_mi.data.cameras import check_c2w, decompose_projection
     m = np.eye(4)

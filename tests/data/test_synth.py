@@ -8,6 +8,8 @@ import pytest
 import trimesh
 from scipy.ndimage import binary_dilation
 
+import mitsuba as mi
+
 import reneus_mi  # noqa: F401  (sets the variant)
 from reneus_mi.data import load_dataset, objects, synth
 from reneus_mi.data.masks import container_masks
@@ -21,7 +23,8 @@ def test_object_closed_normalized_and_boxed(name):
     mesh = objects.load_object(name)
     assert mesh.is_watertight and mesh.is_winding_consistent
     assert mesh.volume > 0.0  # outward normals: diffuse shading is one-sided
-    obj, box = objects.normalize(mesh, margin=0.15, radius=0.95)
+    obj, box, inside = objects.normalize(mesh, margin=0.15, radius=0.95)
+    assert inside is None
     assert np.linalg.norm(obj.vertices, axis=1).max() < 0.95
     np.testing.assert_allclose(np.linalg.norm(box.vertices, axis=1), 0.95, rtol=1e-9)
     assert box.is_watertight and box.volume > 0.0
@@ -37,7 +40,7 @@ def test_object_closed_normalized_and_boxed(name):
 
 
 def test_insect_has_thin_legs_and_antennae():
-    obj, _ = objects.normalize(objects.load_object('insect'))
+    obj, _, _ = objects.normalize(objects.load_object('insect'))
     # Just above the lowest point only the six feet are cut; at z = 0.2 only
     # the two antennae. Every cut is a thin tube (scene diameter is 1.9).
     for z, count in ((obj.bounds[0, 2] + 0.05, 6), (0.2, 2)):
@@ -52,7 +55,7 @@ def test_mesh_file_is_loaded_colored_and_scaled(tmp_path):
     trimesh.creation.icosphere(subdivisions=3, radius=7.0).apply_translation([3, 0, 0]).export(path)
     mesh = objects.load_object(path)
     assert mesh.visual.kind == 'vertex' and mesh.visual.vertex_colors[:, :3].std() > 20.0
-    obj, _ = objects.normalize(mesh)
+    obj, _, _ = objects.normalize(mesh)
     np.testing.assert_allclose(obj.bounds.sum(axis=0), 0.0, atol=1e-9)
     assert np.linalg.norm(obj.vertices, axis=1).max() < 0.95
 
@@ -141,3 +144,28 @@ def test_dataset_round_trip(tmp_path):
             assert (ds.container is not None) == with_box
             gt = trimesh.load(ds.gt_mesh)
             np.testing.assert_allclose(gt.bounds, trimesh.load(res['gt_mesh']).bounds, atol=1e-6)
+
+
+@pytest.mark.parametrize('kind', ['case', 'jar', 'amber'])
+def test_containers_of_collections(tmp_path, kind):
+    # The generator's case, jar and amber block become datasets whose scene the integrator
+    # reads as the same interfaces: the glass, then the air or the liquid inside it.
+    synth_main(['insect', '-o', str(tmp_path / kind), '--views', '4', '--res', '24', '--spp', '8',
+                '--subsets', 'box', '--container', kind, '--absorption', '0.1', '0.2', '0.3'])
+    ds = load_dataset(str(tmp_path / kind / 'box'))
+    scene = mi.load_file(str(tmp_path / kind / 'box' / 'scene.xml'))
+    found = scene.integrator().bind(scene).interfaces
+    outer = trimesh.load(ds.container)
+    if kind == 'amber':
+        assert not ds.inner and found.count == 1 and np.allclose(ds.absorption, [0.1, 0.2, 0.3])
+        assert found.sigma_a == (pytest.approx((0.1, 0.2, 0.3)),)
+        return
+    inner = trimesh.load(ds.inner[0].mesh)
+    wall = (outer.extents - inner.extents) / 2
+    ior = {'case': 1.0, 'jar': synth.LIQUID_IOR}[kind]
+    assert ds.ior == 1.45 and ds.inner[0].ior == ior and ds.absorption is None
+    assert np.allclose(ds.inner[0].absorption, [0.1, 0.2, 0.3])
+    assert found.count == 2 and found.ior == pytest.approx((1.45, ior), rel=1e-6)
+    assert found.sigma_a[0] is None and found.sigma_a[1] == pytest.approx((0.1, 0.2, 0.3))
+    # The wall is even all round: WALL of the insect's largest half-extent, in the scene's scale.
+    assert wall.max() - wall.min() < 0.02 * wall.max() and wall.min() > 0

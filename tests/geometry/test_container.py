@@ -40,3 +40,7 @@ def test_container_parts_apart_or_hollow_pass_overlapping_fail():
         _check_disjoint([outer, trimesh.creation.box()], 'scene.xml')    # glass in glass
     with pytest.raises(ValueError, match='container parts overlap'):
         _check_disjoint([outer, trimesh.creation.box().apply_translation((0.8, 0.8, 0.8))], 's')
+    # An interface of its own inside the glass (a case's air, a jar's liquid: another dielectric).
+    _check_disjoint([outer, trimesh.creation.box()], 'scene.xml', etas=[1.5, 1 / 1.5])
+    with pytest.raises(ValueError, match='container parts overlap'):
+        _check_disjoint([outer, trimesh.creation.box().apply_translation((0.8, 0.8, 0.8))], 's', etas=[1.5, 0.9])
