@@ -122,6 +122,36 @@ def path_reference(scene, spp: int, seed: int = 0) -> tuple[np.ndarray, np.ndarr
     return L.mean(axis=1), L.std(axis=1) / np.sqrt(spp)
 
 
+def render_derivatives(scene, key: str, index: int, h: float = 2e-3) -> tuple[np.ndarray, np.ndarray]:
+    """The derivative of every pixel-centre ray's radiance with respect to entry ``index`` of
+    the integrator's array ``key``: forward-mode AD and central differences of step ``h``,
+    (3, P) each. The rays keep their pixels; what moves is the scene under them."""
+    integrator = scene.integrator()
+    ray = pixel_rays(scene)
+    array = integrator.params()[key]
+    value = np.array(array)
+    e = np.zeros_like(value)
+    e[index] = 1.0
+    dr.enable_grad(array)
+    dr.set_grad(array, mi.Float(e))
+    L = integrator.render_rays(scene, ray).L
+    dr.forward_to(L)
+    ad = np.array(dr.grad(L))
+    dr.disable_grad(array)
+    f = []
+    for sign in (1, -1):
+        mi.set_property(array, mi.Float(value + sign * h * e))
+        f.append(np.array(integrator.render_rays(scene, ray).L))
+    mi.set_property(array, mi.Float(value))
+    return ad, (f[0] - f[1]) / (2 * h)
+
+
+def derivatives_agree(ad: np.ndarray, fd: np.ndarray) -> np.ndarray:
+    """Where AD and central differences agree; a few rays cross an edge within the step, where
+    the difference quotient is not a derivative."""
+    return np.abs(ad - fd) < 0.01 + 0.05 * np.abs(fd)
+
+
 def reneus_pixels(scene) -> np.ndarray:
     result = scene.integrator().render_rays(scene, pixel_rays(scene))
     return np.array(result.L).T

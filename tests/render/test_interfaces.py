@@ -5,12 +5,12 @@ closed surface a cylinder and two disks), each with an opaque probe inside, agai
 respect to the IORs against central differences; how the interfaces are found."""
 import functools
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
 
-from reference import BLOCK_HALF, BLOCK_ROTATION, path_reference, path_scene, pixel_rays, reneus_pixels, reneus_scene
+from reference import (BLOCK_HALF, BLOCK_ROTATION, derivatives_agree, path_reference, path_scene, render_derivatives,
+                       reneus_pixels, reneus_scene)
 from reneus_mi.config import RefineConfig
 from reneus_mi.render import interfaces
 from reneus_mi.render.interfaces import AIR, dielectric, display_case, interfaces_of
@@ -120,25 +120,8 @@ def test_render_gradients_through_the_jar_match_finite_differences(key):
     integrator = scene.integrator()
     integrator.configure(refine=RefineConfig(inner_ior=True))
     integrator.bind(scene)
-    ray = pixel_rays(scene)
-    array = integrator.params()[key]
-    value = np.array(array)
-    e = np.zeros_like(value)
-    e[-1] = 1.0
-    dr.enable_grad(array)
-    dr.set_grad(array, mi.Float(e))
-    L = integrator.render_rays(scene, ray).L
-    dr.forward_to(L)
-    ad = np.array(dr.grad(L))
-    dr.disable_grad(array)
-    h = 2e-3
-    f = []
-    for sign in (1, -1):
-        mi.set_property(array, mi.Float(value + sign * h * e))
-        f.append(np.array(integrator.render_rays(scene, ray).L))
-    mi.set_property(array, mi.Float(value))
-    fd = (f[0] - f[1]) / (2 * h)
-    agree = np.abs(ad - fd) < 0.01 + 0.05 * np.abs(fd)
+    ad, fd = render_derivatives(scene, key, len(np.array(integrator.params()[key])) - 1)
+    agree = derivatives_agree(ad, fd)
     assert agree.mean() > 0.98, (key, agree.mean())
     assert np.abs(ad - fd)[agree].sum() < 0.03 * np.abs(fd)[agree].sum(), key
     assert np.abs(fd).max() > 0.05, (key, np.abs(fd).max())

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from reference import AMBIENT, path_reference, path_scene, pixel_rays, reneus_pixels, reneus_scene
+from reference import (AMBIENT, derivatives_agree, path_reference, path_scene, render_derivatives, reneus_pixels,
+                       reneus_scene)
 from reneus_mi.config import RefineConfig
 from reneus_mi.geometry.shapes import container_mesh, write_container
 from reneus_mi.render.surroundings import ContainerPose, Light, fibonacci_directions, sh_basis
@@ -94,28 +95,8 @@ def test_render_gradients_of_surroundings_match_finite_differences(key, i, with_
     # With the board under the block, the refracted rays also move over its print.
     # The board's shading on 8 x 8 texels, each under many pixels.
     scene = _refinable_scene(16, max_depth=2, n_fine=0, with_board=with_board, board_texels=8)
-    integrator = scene.integrator()
-    ray = pixel_rays(scene)
-    array = integrator.params()[key]
-    value = np.array(array)
-    e = np.zeros_like(value)
-    e[i] = 1.0
-    dr.enable_grad(array)
-    dr.set_grad(array, mi.Float(e))
-    L = integrator.render_rays(scene, ray).L
-    dr.forward_to(L)
-    ad = np.array(dr.grad(L))
-    dr.disable_grad(array)
-    h = 2e-3
-    f = []
-    for sign in (1, -1):
-        mi.set_property(array, mi.Float(value + sign * h * e))
-        f.append(np.array(integrator.render_rays(scene, ray).L))
-    mi.set_property(array, mi.Float(value))
-    fd = (f[0] - f[1]) / (2 * h)
-    # A few rays cross a box edge (or the print's texels) within ±h: there the difference
-    # quotient is not a derivative.
-    agree = np.abs(ad - fd) < 0.01 + 0.05 * np.abs(fd)
+    ad, fd = render_derivatives(scene, key, i)
+    agree = derivatives_agree(ad, fd)
     assert agree.mean() > (0.95 if with_board else 0.99), (key, i, agree.mean())
     assert np.abs(ad - fd)[agree].sum() < 0.02 * np.abs(fd)[agree].sum(), key
     # A texel's gain moves a pixel by the print's radiance there through the glass (black print: little).
