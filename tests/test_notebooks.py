@@ -86,3 +86,14 @@ def test_evaluation(tmp_path, monkeypatch):
         assert 0 < s['accuracy'] < 1 and 0 < s['completeness'] < 1
         # The colour map's per-vertex distances measure the same thing as the Chamfer accuracy.
         assert r['accuracy'][name] == pytest.approx(s['accuracy'], rel=0.5)
+
+
+@pytest.mark.slow
+def test_specimen_jar(tmp_path, monkeypatch):
+    r = run_notebook('04_specimen_jar.ipynb',
+                     "{'count': interfaces.count, 'field': interfaces.field, 'ior': list(interfaces.ior), "
+                     "'scores': scores}", tmp_path, monkeypatch)
+    # Two interfaces, the field in the liquid, the IORs from the world in: glass, then ethanol.
+    assert r['count'] == 2 and r['field'] == 2
+    assert r['ior'] == pytest.approx([1.45, 1.36], rel=1e-5)
+    assert set(r['scores']) == {'jar', 'solid block'} and all(np.isfinite(list(r['scores'].values())))
