@@ -40,6 +40,15 @@ Layout of ``OUT/SCENE/``::
     box_vnormals/    (blob only) box/'s photographs with the block exported with normals
     scene.json       how it was made: settings, block file, render seconds, noise
 
+``--containers case jar amber`` also photographs each object, with the same cameras, in the
+containers collections hold (``OUT/SCENE/KIND/``, transforms.json stating them as the project
+reads them): ``case``, the block's faces and inner faces ``WALL`` in around air (a Glass BSDF of
+IOR 1/1.45 facing out of the air); ``jar``, a 64-sided cylinder through the block's corners
+(side smooth, rims sharp) with a liquid ``WALL`` in (IOR 1.36 in 1.45, a Volume Absorption
+``TINT``); ``amber``, the block with a Volume Absorption ``AMBER`` (Cycles absorbs density x
+(1 - colour) per unit). The surfaces are written by Blender's PLY exporter (with its normals for
+the jar).
+
 ``--degrade SRC DST`` writes a camera-like copy of one dataset folder (SRC is only read):
 per-photo exposure drift (a factor uniform in 1 +- ``--exposure``), sensor noise (shot and
 read noise on linear values), 8-bit JPEG at ``--jpeg-quality``. JPEG has no alpha: the box
@@ -71,6 +80,14 @@ except ImportError:
 
 #: Index of refraction of the glass block.
 IOR = 1.45
+#: Containers of collections (``--containers``): a glass case's and a jar's glass (Blender
+#: units: the blocks are about 1.2 across), a jar's liquid (ethanol) and its faint tint, amber
+#: (absorption per unit, RGB).
+CONTAINERS = ('case', 'jar', 'amber')
+WALL = 0.05
+LIQUID = 1.36
+TINT = (0.02, 0.05, 0.15)
+AMBER = (0.15, 0.35, 0.7)
 #: Radiance of the constant world (linear, every channel).
 WORLD = 0.8
 #: Camera distance from the block's centre, in units of the block's bounding radius.
@@ -488,17 +505,26 @@ def diffuse_material(palette) -> bpy.types.Material:
     return mat
 
 
-def glass_material() -> bpy.types.Material:
-    mat = bpy.data.materials.new('glass')
+def glass_material(ior: float = IOR, absorption=None, name: str = 'glass') -> bpy.types.Material:
+    """Cycles' smooth Glass BSDF of relative IOR ``ior`` (inside over outside, as its normals
+    say), and where ``absorption`` (RGB per unit) is given a Volume Absorption inside: Cycles
+    absorbs density x (1 - colour) per unit, so the largest channel is the density."""
+    mat = bpy.data.materials.new(name)
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
     glass = nodes.new('ShaderNodeBsdfGlass')
     glass.distribution = 'GGX'
     glass.inputs['Roughness'].default_value = 0.0
-    glass.inputs['IOR'].default_value = IOR
+    glass.inputs['IOR'].default_value = ior
     glass.inputs['Color'].default_value = (1.0, 1.0, 1.0, 1.0)
     out = nodes.new('ShaderNodeOutputMaterial')
     links.new(glass.outputs['BSDF'], out.inputs['Surface'])
+    if absorption is not None:
+        density = max(absorption)
+        volume = nodes.new('ShaderNodeVolumeAbsorption')
+        volume.inputs['Density'].default_value = density
+        volume.inputs['Color'].default_value = (*(1.0 - a / density for a in absorption), 1.0)
+        links.new(volume.outputs['Volume'], out.inputs['Volume'])
     return mat
 
 
@@ -533,30 +559,51 @@ def object_mesh(name: str, parts, palette) -> tuple[bpy.types.Object, np.ndarray
     return ob, Vr.reshape(-1, 3), Fr.reshape(-1, 3)
 
 
-def make_block(half, rotate: float) -> tuple[bpy.types.Object, np.ndarray]:
+def make_block(half, rotate: float, name: str = 'block', ior: float = IOR,
+               absorption=None) -> tuple[bpy.types.Object, np.ndarray]:
     """Blender's cube primitive scaled to ``half`` extents and turned about z by ``rotate``
     degrees, the transform applied to its 8 vertices; returns it and its world triangles."""
     bpy.ops.mesh.primitive_cube_add(size=2.0)
     ob = bpy.context.active_object
-    ob.name = 'block'
+    ob.name = name
     ob.scale = half
     ob.rotation_euler = (0.0, 0.0, math.radians(rotate))
     bpy.ops.object.transform_apply(location=True, rotation=True, scale=True)
-    ob.data.materials.append(glass_material())
+    ob.data.materials.append(glass_material(ior, absorption, name))
+    return ob, _triangles(ob)
+
+
+def make_cylinder(radius: float, half_height: float, name: str, ior: float,
+                  absorption=None) -> tuple[bpy.types.Object, np.ndarray]:
+    """Blender's cylinder primitive (64 sides, axis z, closed by two n-gons), its side shaded
+    smooth and its rims sharp, as a jar is; returns it and its world triangles."""
+    bpy.ops.mesh.primitive_cylinder_add(vertices=64, radius=radius, depth=2.0 * half_height)
+    ob = bpy.context.active_object
+    ob.name = name
+    me = ob.data
+    for p in me.polygons:
+        p.use_smooth = len(p.vertices) == 4
+    for e in me.edges:
+        ends = [me.vertices[i].co.z for i in e.vertices]
+        e.use_edge_sharp = abs(ends[0] - ends[1]) < 1e-9        # the rims
+    me.materials.append(glass_material(ior, absorption, name))
+    return ob, _triangles(ob)
+
+
+def _triangles(ob) -> np.ndarray:
     me = ob.data
     V = np.array([v.co[:] for v in me.vertices])
-    tris = np.array([[V[i] for i in (q[0], q[k], q[k + 1])] for q in (p.vertices for p in me.polygons)
+    return np.array([[V[i] for i in (q[0], q[k], q[k + 1])] for q in (p.vertices for p in me.polygons)
                      for k in range(1, len(q) - 1)])
-    return ob, tris
 
 
 def export_block(ob, folder: str, format: str, ascii: bool, triangulate: bool, normals: bool) -> str:
-    """The block through Blender's own exporter, in Blender's world axes (z up): the
-    cameras' frame. Returns the file name."""
+    """The block (or another container surface) through Blender's own exporter, in Blender's
+    world axes (z up): the cameras' frame. Returns the file name."""
     for other in bpy.context.scene.objects:
         other.select_set(other is ob)
     bpy.context.view_layer.objects.active = ob
-    name = f'block.{format}'
+    name = f'{ob.name}.{format}'
     path = os.path.join(folder, name)
     common = dict(filepath=path, export_selected_objects=True, forward_axis='Y', up_axis='Z',
                   export_normals=normals, export_uv=False, export_triangulated_mesh=triangulate)
@@ -579,7 +626,48 @@ def render(sc, path: str, seed: int) -> np.ndarray:
     return rgb
 
 
-def make_scene(name: str, out: str, views: int, res: int, spp: int) -> dict:
+def _photograph(sc, cam, poses, vdir: str, alpha: np.ndarray, base: int, label: str) -> tuple[float, np.ndarray]:
+    """Render every view into ``vdir/images`` (RGBA, ``alpha`` the container's masks) with seeds
+    from ``base``; returns the seconds it took and the first view (for the noise)."""
+    os.makedirs(os.path.join(vdir, 'images'), exist_ok=True)
+    start = time.perf_counter()
+    first = None
+    for i in range(len(poses)):
+        cam.matrix_world = Matrix(poses[i].tolist())
+        rgb = render(sc, os.path.join(vdir, 'images', '.render.png'), base + i)
+        write_png(os.path.join(vdir, 'images', NAME.format(i) + '.png'), np.concatenate([rgb, alpha[i]], -1))
+        first = rgb if first is None else first
+        print(f'\r{label}: {i + 1}/{len(poses)} views, {time.perf_counter() - start:.0f} s', end='', flush=True)
+    print()
+    return time.perf_counter() - start, first
+
+
+def _noise(sc, cam, poses, vdir: str, base: int, first: np.ndarray, mask: np.ndarray) -> float:
+    """Residual noise: the first view again with other random numbers (display units)."""
+    cam.matrix_world = Matrix(poses[0].tolist())
+    again = render(sc, os.path.join(vdir, 'images', '.render.png'), base + 50000).astype(float)
+    return float(((again - first)[mask] / 255.0).std() / math.sqrt(2))
+
+
+def make_containers(kind: str, block, block_spec: dict) -> tuple[list, dict]:
+    """The container ``kind`` around the scene's object, as Blender objects outermost first,
+    and the dataset keys that state it (files named by the exporter, filled in on export)."""
+    half, rotate = np.asarray(block_spec['half']), block_spec['rotate']
+    if kind == 'amber':
+        amber, _ = make_block(half, rotate, 'amber', IOR, AMBER)
+        return [amber], {'IOR': IOR, 'absorption': list(AMBER)}
+    if kind == 'case':
+        inner, _ = make_block(half - WALL, rotate, 'case_inner', 1.0 / IOR)
+        return [block, inner], {'IOR': IOR, 'containers': [{'int_ior': IOR, 'ext_ior': 1.0},
+                                                            {'int_ior': 1.0, 'ext_ior': IOR}]}
+    radius = float(np.hypot(half[0], half[1]))
+    glass, _ = make_cylinder(radius, half[2], 'jar_glass', IOR)
+    liquid, _ = make_cylinder(radius - WALL, half[2] - WALL, 'jar_liquid', LIQUID / IOR, TINT)
+    return [glass, liquid], {'IOR': IOR, 'containers': [
+        {'int_ior': IOR, 'ext_ior': 1.0}, {'int_ior': LIQUID, 'ext_ior': IOR, 'absorption': list(TINT)}]}
+
+
+def make_scene(name: str, out: str, views: int, res: int, spp: int, containers=()) -> dict:
     spec = SCENES[name]
     folder = os.path.join(out, name)
     os.makedirs(folder, exist_ok=True)
@@ -621,23 +709,9 @@ def make_scene(name: str, out: str, views: int, res: int, spp: int) -> dict:
     for variant in ('box', 'nobox'):
         block.hide_render = variant == 'nobox'
         vdir = os.path.join(folder, variant)
-        os.makedirs(os.path.join(vdir, 'images'), exist_ok=True)
-        start = time.perf_counter()
         base = 100000 * (variant == 'nobox')
-        first = None
-        for i in range(views):
-            cam.matrix_world = Matrix(poses[i].tolist())
-            rgb = render(sc, os.path.join(vdir, 'images', '.render.png'), base + i)
-            write_png(os.path.join(vdir, 'images', NAME.format(i) + '.png'), np.concatenate([rgb, alpha[i]], -1))
-            first = rgb if first is None else first
-            print(f'\r{name}/{variant}: {i + 1}/{views} views, {time.perf_counter() - start:.0f} s',
-                  end='', flush=True)
-        print()
-        seconds = time.perf_counter() - start
-        # Residual noise: the first view again with other random numbers (display units).
-        cam.matrix_world = Matrix(poses[0].tolist())
-        again = render(sc, os.path.join(vdir, 'images', '.render.png'), base + 50000).astype(float)
-        diff = (again - first)[masks[0]] / 255.0
+        seconds, first = _photograph(sc, cam, poses, vdir, alpha, base, f'{name}/{variant}')
+        noise = _noise(sc, cam, poses, vdir, base, first, masks[0])
         meta = {'camera_angle_x': fov}
         if variant == 'box':
             meta.update(IOR=IOR, mesh_outside=export_block(
@@ -649,8 +723,7 @@ def make_scene(name: str, out: str, views: int, res: int, spp: int) -> dict:
             meta['scale_mat'] = scale_mat.tolist()
         meta['frames'] = frames
         write_json(os.path.join(vdir, 'transforms.json'), meta)
-        record['variants'][variant] = {'seconds': seconds,
-                                       'noise_std_display': float(diff.std() / math.sqrt(2)),
+        record['variants'][variant] = {'seconds': seconds, 'noise_std_display': noise,
                                        'mesh_outside': meta.get('mesh_outside')}
     for variant, exporter in spec.get('extra', {}).items():
         # The same photographs, the block written another way.
@@ -662,6 +735,29 @@ def make_scene(name: str, out: str, views: int, res: int, spp: int) -> dict:
         write_json(os.path.join(vdir, 'transforms.json'), meta)
         record['variants'][variant] = {'photographs': 'box', 'mesh_outside': meta['mesh_outside'],
                                        'exporter': exporter}
+    for c, kind in enumerate(containers):
+        # The same object and cameras in a container of a collection: its surfaces exported
+        # as PLY with Blender's normals (a jar's side is smooth, its rims sharp).
+        for ob in bpy.context.scene.objects:
+            if ob.type == 'MESH' and ob is not obj:
+                ob.hide_render = True
+        shells, meta = make_containers(kind, block, block_spec)
+        for ob in shells:
+            ob.hide_render = False
+        vdir = os.path.join(folder, kind)
+        kind_masks = block_masks(_triangles(shells[0]), poses, fov, res)
+        kind_alpha = (kind_masks * 255).astype(np.uint8)[..., None]
+        base = 200000 * (c + 1)
+        seconds, first = _photograph(sc, cam, poses, vdir, kind_alpha, base, f'{name}/{kind}')
+        noise = _noise(sc, cam, poses, vdir, base, first, kind_masks[0])
+        files = [export_block(ob, vdir, format='ply', ascii=False, triangulate=True, normals=kind == 'jar')
+                 for ob in shells]
+        meta = {'camera_angle_x': fov, 'mesh_outside': files[0], **meta, 'frames': frames}
+        for entry, file in zip(meta.get('containers', []), files):
+            entry['mesh'] = file
+        write_json(os.path.join(vdir, 'transforms.json'), meta)
+        record['variants'][kind] = {'seconds': seconds, 'noise_std_display': noise, 'files': files,
+                                    **{k: v for k, v in meta.items() if k not in ('frames', 'camera_angle_x')}}
     write_json(os.path.join(folder, 'scene.json'), record)
     return record
 
@@ -721,6 +817,9 @@ def main(argv=None) -> None:
     parser.add_argument('--res', type=int, default=128)
     parser.add_argument('--spp', type=int, default=256, help='Cycles samples per pixel (adaptive, at most)')
     parser.add_argument('--overwrite', action='store_true', help='render scenes that are already there again')
+    parser.add_argument('--containers', nargs='*', choices=CONTAINERS, default=[],
+                        help='also photograph each object in these containers of collections: a glass case '
+                             '(walls around air), a jar of tinted ethanol, an amber block')
     parser.add_argument('--degrade', nargs=2, metavar=('SRC', 'DST'),
                         help='write a camera-like copy of the dataset SRC to the new folder DST')
     parser.add_argument('--seed', type=int, default=0, help='--degrade: random numbers')
@@ -741,7 +840,7 @@ def main(argv=None) -> None:
         if os.path.isfile(done) and not args.overwrite:
             print(f'{name}: already there ({done}); --overwrite renders it again')
             continue
-        record = make_scene(name, args.out, args.views, args.res, args.spp)
+        record = make_scene(name, args.out, args.views, args.res, args.spp, args.containers)
         print(f"{name}: " + ', '.join(f"{v} {r['seconds']:.0f} s (noise {r['noise_std_display']:.4f})"
                                      for v, r in record['variants'].items() if 'seconds' in r))
 
