@@ -285,7 +285,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         plus = render.mode == 'neus_plus'
         depth_limit = 1 if plus else render.max_depth
         outside, field = surroundings.outside, surroundings.interfaces.field
-        σ_field = surroundings.absorption(field)
+        σ_field = surroundings.absorption(mi.UInt32(field))
         for depth in range(depth_limit + 1):
             if rays.size == 0:
                 return

@@ -344,13 +344,10 @@ class Surroundings:
         """The region a ray refracted through an interface goes into."""
         return dr.select(entering, group + 1, dr.gather(mi.UInt32, self._outer, group))
 
-    def absorption(self, region: mi.UInt32 | int) -> mi.Color3f | None:
+    def absorption(self, region: mi.UInt32) -> mi.Color3f | None:
         """The absorption coefficient of each region (None: no region absorbs)."""
         if self.sigma_a is None:
             return None
-        if isinstance(region, int):
-            return mi.Color3f(*(dr.gather(mi.Float, self.sigma_a, mi.UInt32(3 * (region - 1) + c))
-                                for c in range(3))) if region else mi.Color3f(0.0)
         i = 3 * (dr.maximum(region, 1) - 1)
         return dr.select(region > 0, mi.Color3f(*(dr.gather(mi.Float, self.sigma_a, i + c) for c in range(3))), 0.0)
 
