@@ -19,9 +19,10 @@ def main(argv=None) -> int:
                                      description="A photographer's capture, rendered by Mitsuba's path tracer.")
     parser.add_argument('photos', metavar='PHOTOS', help='folder for the photographs and capture.json (new or empty)')
     parser.add_argument('--truth', required=True, help='folder for the ground truth (new or empty)')
+    kinds = {'int': int, 'float': float, 'str': str, 'float | None': float}
     for f in dataclasses.fields(Rig):
-        if f.type in ('int', 'float', 'str'):
-            parser.add_argument('--' + f.name.replace('_', '-'), type={'int': int, 'float': float, 'str': str}[f.type],
+        if f.type in kinds:
+            parser.add_argument('--' + f.name.replace('_', '-'), type=kinds[f.type],
                                 default=f.default, help=f'(default: {f.default})')
     args = parser.parse_args(argv)
     rig = Rig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(Rig) if hasattr(args, f.name)})

@@ -9,6 +9,8 @@ Layout of ``DATASET_DIR`` (coordinates: the board's frame, millimetres)::
                          and photograph, the lens, the container's place; written last
     images/NAME.png      the photographs, undistorted, scaled, exposures normalised
     container.ply        the container in the board's frame
+    container_inner.ply  a hollow container's inside (``--wall-mm``): the air of a case, the
+                         liquid of a jar; transforms.json's "containers" names both
     board.png            the printed pattern (BOARD_PX_PER_MM pixels per millimetre)
     report.json          calibration and registration figures, per view; views left out
     overlays/NAME.jpg    pictures to check (see :mod:`reneus_mi.capture.overlay`)
@@ -28,12 +30,14 @@ from reneus_mi.capture.calibrate import Calibration
 from reneus_mi.capture.placement import board_mesh, local_mesh
 from reneus_mi.capture.settings import CaptureSettings, to_json
 from reneus_mi.data.cameras import OPENGL_FROM_OPENCV
+from reneus_mi.data.dataset import Interface, containers_json
 from reneus_mi.data.images import write_image
 from reneus_mi.geometry.shapes import write_container
 from reneus_mi.utils.io import atomic_write_text
 
 #: Names the command writes into the dataset folder (a rerun after a refusal may replace them).
-OUTPUTS = ('transforms.json', 'images', 'container.ply', 'board.png', 'report.json', 'overlays')
+OUTPUTS = ('transforms.json', 'images', 'container.ply', 'container_inner.ply', 'board.png', 'report.json',
+           'overlays')
 #: Resolution of the written board pattern.
 BOARD_PX_PER_MM = 10.0
 #: Words for the frame, said once.
@@ -74,8 +78,12 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
           images: np.ndarray, reg, light) -> dict:
     """Write the dataset into ``out`` (checked by the caller); return the report."""
     n, h, w = images.shape[:3]
-    write_container(board_mesh(s.container, s.size_mm, reg.pose), os.path.join(out, 'container.ply'),
-                    normals=s.container != 'box')
+    interfaces = [Interface('container.ply', s.ior)]
+    if s.wall_mm is not None:
+        interfaces.append(Interface('container_inner.ply', s.liquid_ior or 1.0))
+    for interface, inset in zip(interfaces, (0.0, s.wall_mm)):
+        write_container(board_mesh(s.container, s.size_mm, reg.pose, inset), os.path.join(out, interface.mesh),
+                        normals=s.container != 'box')
     write_image(os.path.join(out, 'board.png'), board.pattern(BOARD_PX_PER_MM).astype(np.float32) / 255.0)
     report = {
         'frame': FRAME,
@@ -88,7 +96,8 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
                    'container_residual_px': float(r)}
                   for v, g, r in zip(cal.views, light.gains, reg.view_residuals)],
         'left_out': cal.dropped,
-        'container': {'shape': s.container, 'size_mm': list(s.size_mm), 'pose': list(reg.pose),
+        'container': {'shape': s.container, 'size_mm': list(s.size_mm), 'wall_mm': s.wall_mm,
+                      'liquid_ior': s.liquid_ior, 'pose': list(reg.pose),
                       'pose_given': s.container_pose is not None, 'residual_px': reg.residual},
         'light': {'ambient': light.ambient.tolist(), 'ambient_from': light.ambient_from,
                   'board_white': light.white.tolist(), 'board_black': light.black.tolist()},
@@ -96,6 +105,7 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
     atomic_write_text(os.path.join(out, 'report.json'), json.dumps(report, indent=2))
     meta = {
         'IOR': s.ior, 'mesh_outside': 'container.ply',
+        **({'containers': containers_json(interfaces[0], interfaces[1:])} if len(interfaces) > 1 else {}),
         'ambient': light.ambient.tolist(),
         'capture': {
             'frame': FRAME, 'units': 'mm',
@@ -115,7 +125,8 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
 def write_overlays(out: str, images, K, c2w, board: Board, cal: Calibration, s: CaptureSettings, *,
                    measured=None, pose=None, residuals=None) -> None:
     """One overlay per photograph into ``out/overlays``."""
-    segments = overlay.wireframe(s.container, local_mesh(s.container, s.size_mm))
+    segments = [segment for inset in ((0.0,) if s.wall_mm is None else (0.0, s.wall_mm))
+                for segment in overlay.wireframe(s.container, local_mesh(s.container, s.size_mm, inset))]
     for i, view in enumerate(cal.views):
         text = f'{view.name}: {int(view.used.sum())} corners, RMS {view.rms:.2f} px'
         if residuals is not None and np.isfinite(residuals[i]):

@@ -32,16 +32,17 @@ def _inner_half(shape: str, size) -> np.ndarray:
     return np.array([side, side, hz])
 
 
-def local_mesh(shape: str, size) -> trimesh.Trimesh:
-    """The container in its own frame (see the module docstring), outer size ``size`` in mm.
+def local_mesh(shape: str, size, inset: float = 0.0) -> trimesh.Trimesh:
+    """The container in its own frame (see the module docstring), outer size ``size`` in mm;
+    with ``inset``, the surface that many millimetres inside it everywhere (the inside of a
+    hollow container's walls).
 
     Smooth shapes keep their vertex normals (the renderers shade with them)."""
-    mesh = container_mesh(shape, _inner_half(shape, size))
+    mesh = container_mesh(shape, _inner_half(shape, size), grow=-inset)
     normals = None if shape == 'box' else np.asarray(mesh.vertex_normals).copy()
-    lo, hi = mesh.bounds
-    # Standing on z = 0, upwards being -z; a mirror in z keeps a closed mesh closed once the
-    # faces are turned over.
-    vertices = np.asarray(mesh.vertices) - [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]]
+    # The shapes are centred on the origin: standing on z = 0, upwards being -z; a mirror in z
+    # keeps a closed mesh closed once the faces are turned over.
+    vertices = np.asarray(mesh.vertices) + [0.0, 0.0, 0.5 * size[2]]
     vertices[:, 2] *= -1.0
     out = trimesh.Trimesh(vertices, np.asarray(mesh.faces)[:, ::-1], process=False)
     if normals is not None:
@@ -60,9 +61,10 @@ def pose_matrix(pose) -> np.ndarray:
     return M
 
 
-def board_mesh(shape: str, size, pose) -> trimesh.Trimesh:
-    """The container placed on the board (board frame, millimetres), normals carried along."""
-    mesh = local_mesh(shape, size)
+def board_mesh(shape: str, size, pose, inset: float = 0.0) -> trimesh.Trimesh:
+    """The container (or with ``inset`` its inside, see :func:`local_mesh`) placed on the board
+    (board frame, millimetres), normals carried along."""
+    mesh = local_mesh(shape, size, inset)
     normals = None if shape == 'box' else np.asarray(mesh.vertex_normals).copy()
     M = pose_matrix(pose)
     mesh.apply_transform(M)

@@ -45,6 +45,12 @@ class CaptureSettings:
     height (a cylinder: diameter x diameter x height)."""
     ior: float | None = None
     """Index of refraction of the container (glass about 1.5, acrylic 1.49, epoxy resin 1.55)."""
+    wall_mm: float | None = None
+    """Thickness in millimetres of the walls of a hollow container (a display case: a box; a jar:
+    a cylinder), lid and floor included; not given: a solid block."""
+    liquid_ior: float | None = None
+    """Index of refraction of the liquid that fills a hollow container (ethanol 1.36, water
+    1.33); not given: air."""
     max_size: int | None = None
     """Largest side in pixels of the dataset's images (the photographs are scaled down to it)."""
     downscale: float | None = None
@@ -80,8 +86,17 @@ class CaptureSettings:
         if self.container == 'cylinder' and width != depth:
             raise ReneusError(f"{where}: size_mm={_x(self.size_mm)} for a cylinder; expected "
                               "diameter x diameter x height (equal first two)")
-        if not 1.0 < self.ior <= 3.0:
-            raise ReneusError(f"{where}: ior={self.ior:g}; expected a number in (1, 3] (glass: about 1.5)")
+        for name in ('ior', 'liquid_ior'):
+            value = getattr(self, name)
+            if value is not None and not 1.0 < value <= 3.0:
+                raise ReneusError(f"{where}: {name}={value:g}; expected a number in (1, 3] "
+                                  f"({'glass: about 1.5' if name == 'ior' else 'ethanol: 1.36'})")
+        if self.wall_mm is not None and not 0 < 2 * self.wall_mm < min(self.size_mm):
+            raise ReneusError(f"{where}: wall_mm={self.wall_mm:g} and size_mm={_x(self.size_mm)} contradict "
+                              "each other; expected a positive wall thinner than half the smallest size")
+        if self.liquid_ior is not None and self.wall_mm is None:
+            raise ReneusError(f"{where}: liquid_ior={self.liquid_ior:g} without wall_mm; expected the "
+                              "thickness of the walls that hold the liquid (--wall-mm)")
         if self.max_size is not None and self.downscale is not None:
             raise ReneusError(f"{where}: max_size={self.max_size} and downscale={self.downscale:g} "
                               "both given; expected one of them")

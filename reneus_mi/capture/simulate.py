@@ -11,7 +11,8 @@ that drifts between shots, sensor noise (shot and read), the display curve and J
 Written for the photographer (``PHOTOS``): only the JPEGs and ``capture.json`` (the board
 and the container as measured). Written apart (``TRUTH``): ``truth.json`` (intrinsics,
 distortion, every camera in the board's frame, exposure gains, the container's place, the
-light), ``container.ply`` and ``specimen.ply`` in the board's frame, millimetres.
+light), ``container.ply`` (and a hollow one's ``container_inner.ply``) and ``specimen.ply`` in
+the board's frame, millimetres.
 
 The command (:mod:`reneus_mi.simulate`)::
 
@@ -56,6 +57,10 @@ class Rig:
     container: str = 'box'
     size_mm: tuple[float, float, float] = (50.0, 35.0, 25.0)
     ior: float = 1.5
+    wall_mm: float | None = None
+    """A hollow container's walls (a case, a jar); None: a solid block."""
+    liquid_ior: float | None = None
+    """The liquid in a hollow container; None: air."""
     pose: tuple[float, float, float] = (117.3, 93.6, 23.0)
     """Where the container stands: footprint centre x, y (mm) and yaw (degrees)."""
     specimen: str = 'insect'
@@ -101,7 +106,8 @@ class Rig:
         """What the photographer writes down: the board, the container, its IOR."""
         return CaptureSettings(squares=tuple(self.squares), square_mm=self.square_mm,
                                marker_mm=self.marker_mm, dictionary=self.dictionary,
-                               container=self.container, size_mm=tuple(self.size_mm), ior=self.ior)
+                               container=self.container, size_mm=tuple(self.size_mm), ior=self.ior,
+                               wall_mm=self.wall_mm, liquid_ior=self.liquid_ior)
 
     def K(self) -> np.ndarray:
         cx = 0.5 * self.width + self.principal_offset_px[0]
@@ -166,9 +172,10 @@ def board_shape(rig: Rig) -> mi.Mesh:
 def specimen_mesh(rig: Rig) -> trimesh.Trimesh:
     """The specimen (coloured) inside the container, in the board's frame."""
     mesh = load_object(rig.specimen)
-    inner = local_mesh(rig.container, rig.size_mm)
+    wall = rig.wall_mm or 0.0
+    inner = local_mesh(rig.container, rig.size_mm, wall)
     # A jar's or rounded block's inner box is smaller than its outer size.
-    room = np.asarray(rig.size_mm) * (0.7 if rig.container == 'cylinder' else 1.0)
+    room = (np.asarray(rig.size_mm) - 2.0 * wall) * (0.7 if rig.container == 'cylinder' else 1.0)
     scale = rig.specimen_fill * np.min(room / mesh.extents)
     mesh.apply_translation(-mesh.bounds.mean(axis=0))
     mesh.apply_scale(scale)
@@ -233,9 +240,13 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
     rng = np.random.default_rng(rig.seed)
     c2w = cameras(rig, rng)
     os.makedirs(truth, exist_ok=True)
-    container = board_mesh(rig.container, rig.size_mm, rig.pose)
-    container_path = os.path.join(truth, 'container.ply')
-    write_container(container, container_path, normals=rig.container != 'box')
+    # Outermost first: the container, then a hollow one's inside (air or liquid).
+    interfaces = [('container.ply', 0.0, rig.ior, 1.0)]
+    if rig.wall_mm is not None:
+        interfaces.append(('container_inner.ply', rig.wall_mm, rig.liquid_ior or 1.0, rig.ior))
+    for name, inset, _, _ in interfaces:
+        write_container(board_mesh(rig.container, rig.size_mm, rig.pose, inset), os.path.join(truth, name),
+                        normals=rig.container != 'box')
     specimen = specimen_mesh(rig)
     specimen_path = os.path.join(truth, 'specimen.ply')
     write_object(specimen, specimen_path)
@@ -244,8 +255,9 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
         'integrator': {'type': 'path', 'max_depth': rig.max_depth, 'rr_depth': rig.max_depth},
         'tent': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': [rig.ambient] * 3}},
         'board': board_shape(rig),
-        # Shaded with the normals the reneus integrator gives the same file.
-        'container': shading_mesh(container_path, bsdf={'type': 'dielectric', 'int_ior': rig.ior, 'ext_ior': 1.0}),
+        # Shaded with the normals the reneus integrator gives the same files.
+        **{os.path.splitext(name)[0]: shading_mesh(os.path.join(truth, name), bsdf={'type': 'dielectric', 'int_ior': n, 'ext_ior': n_out})
+           for name, _, n, n_out in interfaces},
         'specimen': {'type': 'ply', 'filename': specimen_path,
                      'bsdf': {'type': 'diffuse', 'reflectance': {'type': 'mesh_attribute', 'name': 'vertex_color'}}},
     })
@@ -265,8 +277,9 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
     result = {'rig': {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(rig).items()},
               'K': rig.K().tolist(), 'distortion': list(rig.distortion), 'width': rig.width,
               'height': rig.height, 'views': views, 'container': {
-                  'shape': rig.container, 'size_mm': list(rig.size_mm), 'pose': list(rig.pose),
-                  'mesh': 'container.ply'},
+                  'shape': rig.container, 'size_mm': list(rig.size_mm), 'wall_mm': rig.wall_mm,
+                  'liquid_ior': rig.liquid_ior, 'pose': list(rig.pose), 'mesh': 'container.ply',
+                  **({'inner_mesh': 'container_inner.ply'} if rig.wall_mm is not None else {})},
               'specimen': 'specimen.ply', 'ambient': rig.ambient,
               'board': {'white': rig.paper_white * rig.ambient, 'black': rig.ink_black * rig.ambient},
               'frame': 'board (OpenCV ChArUco), millimetres'}

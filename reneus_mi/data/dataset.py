@@ -51,8 +51,8 @@ CONTACT_GAP = 0.1
 
 
 @dataclasses.dataclass(frozen=True)
-class InnerInterface:
-    """An interface inside the container's outer one (``containers`` in transforms.json)."""
+class Interface:
+    """One closed interface of a container (an entry of ``containers`` in transforms.json)."""
     #: Path of its closed mesh (world coordinates).
     mesh: str
     #: The IOR inside it (the one outside is that inside the interface around it).
@@ -123,7 +123,7 @@ class Dataset:
     absorption: np.ndarray | None = None
     #: The interfaces inside the container's outer one, outermost first (a case's inner faces,
     #: a jar's liquid): each with the IOR and the absorption inside it.
-    inner: tuple[InnerInterface, ...] = ()
+    inner: tuple[Interface, ...] = ()
     #: Whether the masks were read from files (segmented photographs) rather than projected
     #: from the container mesh: only such masks say where the container really is.
     masks_measured: bool = False
@@ -157,13 +157,14 @@ class Dataset:
     def normalization(self) -> tuple[np.ndarray, float]:
         """Centre and radius of the sphere the field lives in.
 
-        From ``scale_mat`` when the data has one, else the container's bounding
-        sphere.
+        From ``scale_mat`` when the data has one, else the bounding sphere of the space that
+        holds the specimen: the container, or the innermost of its interfaces (a case's air,
+        a jar's liquid).
         """
         if self.scale_mat is not None:
             return np.array(self.scale_mat[:3, 3], dtype=np.float64), float(self.scale_mat[0, 0])
         if self.container is not None:
-            return bounding_sphere(self.container)
+            return bounding_sphere(self.inner[-1].mesh if self.inner else self.container)
         raise ReneusError(f"{self.root}: dataset has neither a NeuS scale_mat nor a container "
                          "mesh, so the region to reconstruct is unknown")
 
@@ -310,7 +311,7 @@ def _read_containers(entries, outer: dict, root: str, where: str) -> dict:
             raise ReneusError(f"{where}[0].absorption differs from 'absorption'; expected the same")
         absorption = outer['absorption']
     return {'container': mesh, 'ior': ior, 'absorption': absorption,
-            'inner': tuple(InnerInterface(m, n, a) for m, n, a in read[1:])}
+            'inner': tuple(Interface(m, n, a) for m, n, a in read[1:])}
 
 
 def _rgb(value, ok, where: str, expected: str) -> np.ndarray:
@@ -365,18 +366,23 @@ def write_extras(ds: Dataset, out_dir: str) -> dict:
         if path is not None:
             meta[key] = _copy_into(path, out_dir, stem)
     if ds.inner:
-        outer = {'mesh': meta['mesh_outside'], 'int_ior': float(ds.ior), 'ext_ior': 1.0}
-        if ds.absorption is not None:
-            outer['absorption'] = meta['absorption']
-        meta['containers'], outside = [outer], float(ds.ior)
-        for i, interface in enumerate(ds.inner):
-            entry = {'mesh': _copy_into(interface.mesh, out_dir, f'container_inner_{i + 1}'),
-                     'int_ior': float(interface.ior), 'ext_ior': outside}
-            if interface.absorption is not None:
-                entry['absorption'] = np.asarray(interface.absorption, np.float64).tolist()
-            meta['containers'].append(entry)
-            outside = float(interface.ior)
+        inner = [Interface(_copy_into(i.mesh, out_dir, f'container_inner_{k + 1}'), i.ior, i.absorption)
+                 for k, i in enumerate(ds.inner)]
+        meta['containers'] = containers_json(Interface(meta['mesh_outside'], ds.ior, ds.absorption), inner)
     return meta
+
+
+def containers_json(outer: Interface, inner) -> list[dict]:
+    """The ``containers`` entry of transforms.json (see the module docstring) of the interfaces
+    ``outer`` (the container's own) and ``inner``, their meshes named relative to the dataset."""
+    entries, outside = [], 1.0
+    for interface in (outer, *inner):
+        entry = {'mesh': interface.mesh, 'int_ior': float(interface.ior), 'ext_ior': outside}
+        if interface.absorption is not None:
+            entry['absorption'] = np.asarray(interface.absorption, np.float64).tolist()
+        entries.append(entry)
+        outside = float(interface.ior)
+    return entries
 
 
 def _copy_into(path: str, out_dir: str, stem: str) -> str:
@@ -409,7 +415,7 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
              need_container: bool, container: str | None = None, ior: float | None = None,
              gt_mesh: str | None = None, scale_mat: np.ndarray | None = None,
              ambient: np.ndarray | None = None, absorption: np.ndarray | None = None,
-             inner: tuple[InnerInterface, ...] = (), board: PrintedBoard | None = None, units: str | None = None, frame: str | None = None, mask_sources: list[str] | None = None) -> Dataset:
+             inner: tuple[Interface, ...] = (), board: PrintedBoard | None = None, units: str | None = None, frame: str | None = None, mask_sources: list[str] | None = None) -> Dataset:
     """Check what a reader found and build the :class:`Dataset`.
 
     ``files`` are the image paths (for messages); ``masks`` may hold None for

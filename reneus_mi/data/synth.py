@@ -36,7 +36,7 @@ from tqdm import tqdm
 
 from reneus_mi.config import AMBIENT, GAMMA, IOR
 from reneus_mi.data import Dataset, load_dataset, write_dataset
-from reneus_mi.data.dataset import InnerInterface
+from reneus_mi.data.dataset import Interface
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
 from reneus_mi.data.masks import container_masks
 from reneus_mi.data.objects import load_object, normalize
@@ -114,19 +114,10 @@ def _sensor(K: np.ndarray, c2w: np.ndarray, res: int) -> mi.Sensor:
     return mi.load_dict(desc)
 
 
-@dataclasses.dataclass(frozen=True)
-class Layer:
-    """One interface of a generated container, outermost first: its file, the IOR inside it
-    and what the space inside absorbs (RGB per unit; None: clear)."""
-    path: str
-    ior: float
-    absorption: np.ndarray | None = None
-
-
-def scene_dict(gt_mesh: str, layers: list[Layer], max_depth: int = DEFAULT_MAX_DEPTH, *,
+def scene_dict(gt_mesh: str, layers: list[Interface], max_depth: int = DEFAULT_MAX_DEPTH, *,
                ambient: float = AMBIENT) -> dict:
     """The Mitsuba scene: object (diffuse, vertex-colour albedo), the container's ``layers``
-    (none: the object alone), environment.
+    (its interfaces, outermost first; none: the object alone), environment.
 
     The container bends light by the normals the ``reneus`` integrator gives its files
     (:func:`~reneus_mi.geometry.container.shading_mesh`): flat faces stay flat. A layer that
@@ -147,7 +138,7 @@ def scene_dict(gt_mesh: str, layers: list[Layer], max_depth: int = DEFAULT_MAX_D
     outside = 1.0
     for i, layer in enumerate(layers):
         scene[f'container_{i}'] = shading_mesh(
-            layer.path, bsdf={'type': 'dielectric', 'int_ior': layer.ior, 'ext_ior': outside},
+            layer.mesh, bsdf={'type': 'dielectric', 'int_ior': layer.ior, 'ext_ior': outside},
             interior=None if layer.absorption is None else absorbing_medium(layer.absorption))
         outside = layer.ior
     return scene
@@ -258,12 +249,12 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
     # Made in a temporary folder that becomes out_dir once whole: an interrupted or failed
     # run leaves nothing behind, and the same command starts it again.
     with atomic_folder(out_dir) as work:
-        layers = [Layer(os.path.join(work, 'box.ply'), ior, None if walled else absorption)]
-        write_container(box, layers[0].path, normals=shape != 'box')
+        layers = [Interface(os.path.join(work, 'box.ply'), ior, None if walled else absorption)]
+        write_container(box, layers[0].mesh, normals=shape != 'box')
         if walled:
-            layers.append(Layer(os.path.join(work, 'inner.ply'), 1.0 if container == 'case' else liquid_ior,
+            layers.append(Interface(os.path.join(work, 'inner.ply'), 1.0 if container == 'case' else liquid_ior,
                                 absorption))
-            write_container(inside, layers[1].path, normals=shape != 'box')
+            write_container(inside, layers[1].mesh, normals=shape != 'box')
         rendered = _render(work, mesh, layers, K, c2w, res=res, spp=spp, seed=seed, max_depth=max_depth,
                            subsets=subsets, ambient=ambient)
         images, masks, gt_path, noise = rendered
@@ -292,7 +283,7 @@ def _render(folder, mesh, layers, K, c2w, *, res, spp, seed, max_depth, subsets,
     gt_path = os.path.join(folder, 'gt.ply')
     write_object(mesh, gt_path)
 
-    masks = container_masks(layers[0].path, K, c2w, res, res)
+    masks = container_masks(layers[0].mesh, K, c2w, res, res)
     # Seeds of renders are spaced by this stride so that no two renders (views,
     # passes, subsets, the noise probe) share a sample stream.
     stride = max(1, -(-res * res * spp // _MAX_LANES))
@@ -364,10 +355,9 @@ def _write_subsets(images, masks, K, c2w, gt_path, layers, folder, out_dir, ambi
         ds = Dataset(images=imgs, masks=masks, K=K, c2w=c2w,
                      names=[f'r_{i:03d}' for i in range(len(imgs))],
                      root=os.path.join(folder, subset),
-                     container=layers[0].path if with_box else None, ior=layers[0].ior if with_box else None,
+                     container=layers[0].mesh if with_box else None, ior=layers[0].ior if with_box else None,
                      absorption=layers[0].absorption if with_box else None,
-                     inner=tuple(InnerInterface(layer.path, layer.ior, layer.absorption) for layer in layers[1:])
-                     if with_box else (),
+                     inner=tuple(layers[1:]) if with_box else (),
                      gt_mesh=gt_path, scale_mat=np.eye(4))
         paths[subset] = {'blender': os.path.join(out_dir, subset),
                          'neus': os.path.join(out_dir, f'{subset}_neus')}

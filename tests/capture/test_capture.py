@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from capture_data import path_render
 from reneus_mi.capture import __main__ as capture_command, settings
 from reneus_mi.capture.simulate import Rig, distort_image
 from reneus_mi.data import load_dataset
@@ -83,23 +84,6 @@ def test_dataset_reads_back_in_millimetres(made, shot):
     assert len(os.listdir(made['out'] / 'overlays')) == len(ds)
 
 
-def _path_render(xml, ds, view, spp=16):
-    """``path`` on the scene of ``xml`` through the dataset's camera ``view``, display values; the
-    container shaded as reneus shades it (its crease rule), as the simulator rendered it."""
-    import mitsuba as mi
-    from reneus_mi.data.scene_xml import sensor_dict
-    from reneus_mi.geometry.container import shading_mesh
-    scene = mi.load_file(str(xml))
-    parts = {f'backdrop_{i}': s for i, s in enumerate(scene.shapes()) if s.is_emitter()}
-    path = mi.load_dict({'type': 'scene', 'integrator': {'type': 'path', 'max_depth': 10},
-                         'tent': scene.environment(), **parts,
-                         'container': shading_mesh(ds.container, bsdf={'type': 'dielectric', 'int_ior': ds.ior,
-                                                                       'ext_ior': 1.0})})
-    sensor = mi.load_dict(sensor_dict(ds.K[view], ds.c2w[view], ds.width, ds.height))
-    image = np.array(mi.render(path, sensor=sensor, spp=spp, seed=view))
-    return np.clip(image, 0.0, 1.0) ** (1.0 / 2.2)
-
-
 def test_scene_board_is_the_photographed_one(made, tmp_path):
     """The board that ``python -m reneus_mi.scene`` puts under the container (from the dataset's
     pattern, geometry and measured print levels) is what the photographs show: around the
@@ -116,7 +100,7 @@ def test_scene_board_is_the_photographed_one(made, tmp_path):
         xml = tmp_path / f'{board}.xml'
         assert scene_command.main([str(made['out']), '-o', str(xml), '--board', board]) == 0
         assert os.path.isfile(tmp_path / f'{board}_board.exr') == (board == 'scene')
-        d = np.abs(_path_render(xml, ds, view) - ds.images[view]).mean(axis=-1)
+        d = np.abs(path_render(xml, ds, view) - ds.images[view]).mean(axis=-1)
         error[board] = d[~around].mean(), np.median(d[glass])
     print(error)
     assert error['scene'][0] < 0.03

@@ -675,9 +675,14 @@ def photo_copies(shots, folder, n, *, blank=0, settings=False):
     (['--max-size', 320, '--downscale', 2], ['max_size=320 and downscale=2 both given']),
     (['--dictionary', 'DICT_9X9_1'], ["dictionary='DICT_9X9_1'", 'expected an OpenCV ArUco dictionary']),
     (['--squares', '12x9x3'], ["squares='12x9x3'", 'expected 2 numbers like 12x9']),
+    (['--wall-mm', 13], ['wall_mm=13 and size_mm=50x35x25 contradict each other', 'thinner than half']),
+    (['--wall-mm', -1], ['wall_mm=-1', 'expected a positive wall']),
+    (['--liquid-ior', 1.36], ['liquid_ior=1.36 without wall_mm', '--wall-mm']),
+    (['--wall-mm', 2, '--liquid-ior', 0.9], ['liquid_ior=0.9', 'expected a number in (1, 3]']),
 ], ids=['wrong_dictionary', 'fewer_squares', 'other_layout', 'marker_larger_than_square',
         'container_larger_than_board', 'cylinder_of_two_diameters', 'two_scalings', 'unknown_dictionary',
-        'three_numbers'])
+        'three_numbers', 'wall_thicker_than_the_case', 'negative_wall', 'liquid_without_walls',
+        'liquid_below_air'])
 def test_capture_refuses(shots, tmp_path, flags, parts):
     photos = photo_copies(shots, tmp_path / 'photos', 3)
     given = dict(zip(CAPTURE[::2], CAPTURE[1::2]))
