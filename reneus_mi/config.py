@@ -51,7 +51,8 @@ class RenderConfig:
     """'reneus' (the paper), 'neus' (ignores the container: plain NeuS in the field's bounding
     sphere) or 'neus_plus' (refracts once on entry, no reflection, no Fresnel weights)."""
     max_depth: int = 2
-    """D_re, the number of interface events followed (the paper: 2)."""
+    """D_re, the number of interface events followed (the paper: 2; scenes written for a case or
+    a jar get one more per inner interface, reneus_mi.data.scene_xml.hollow_depth)."""
     terminal: str = 'trace'
     """What a ray left at the depth limit sees beyond its last segment: 'trace' (the container
     without the field: its further reflections and refractions, to the backdrop or the ambient;

@@ -27,10 +27,10 @@ import numpy as np
 from reneus_mi.capture import overlay
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.calibrate import Calibration
-from reneus_mi.capture.placement import board_mesh, local_mesh
+from reneus_mi.capture.placement import interfaces, local_mesh
 from reneus_mi.capture.settings import CaptureSettings, to_json
 from reneus_mi.data.cameras import OPENGL_FROM_OPENCV
-from reneus_mi.data.dataset import Interface, containers_json
+from reneus_mi.data.dataset import containers_json
 from reneus_mi.data.images import write_image
 from reneus_mi.geometry.shapes import write_container
 from reneus_mi.utils.io import atomic_write_text
@@ -78,12 +78,9 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
           images: np.ndarray, reg, light) -> dict:
     """Write the dataset into ``out`` (checked by the caller); return the report."""
     n, h, w = images.shape[:3]
-    interfaces = [Interface('container.ply', s.ior)]
-    if s.wall_mm is not None:
-        interfaces.append(Interface('container_inner.ply', s.liquid_ior or 1.0))
-    for interface, inset in zip(interfaces, (0.0, s.wall_mm)):
-        write_container(board_mesh(s.container, s.size_mm, reg.pose, inset), os.path.join(out, interface.mesh),
-                        normals=s.container != 'box')
+    placed = interfaces(s.container, s.size_mm, s.ior, s.wall_mm, s.liquid_ior, reg.pose)
+    for interface, mesh in placed:
+        write_container(mesh, os.path.join(out, interface.mesh), normals=s.container != 'box')
     write_image(os.path.join(out, 'board.png'), board.pattern(BOARD_PX_PER_MM).astype(np.float32) / 255.0)
     report = {
         'frame': FRAME,
@@ -105,7 +102,7 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
     atomic_write_text(os.path.join(out, 'report.json'), json.dumps(report, indent=2))
     meta = {
         'IOR': s.ior, 'mesh_outside': 'container.ply',
-        **({'containers': containers_json(interfaces[0], interfaces[1:])} if len(interfaces) > 1 else {}),
+        **({'containers': containers_json(placed[0][0], [i for i, _ in placed[1:]])} if len(placed) > 1 else {}),
         'ambient': light.ambient.tolist(),
         'capture': {
             'frame': FRAME, 'units': 'mm',

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from reneus_mi.data.dataset import Interface
 from reneus_mi.geometry.shapes import ROUNDING, container_mesh
 
 
@@ -79,3 +80,14 @@ def symmetry(shape: str, size) -> float:
     if shape == 'cylinder':
         return 0.0
     return 90.0 if np.isclose(size[0], size[1], rtol=1e-3) else 180.0
+
+
+def interfaces(container: str, size, ior: float, wall_mm: float | None, liquid_ior: float | None,
+               pose) -> list[tuple[Interface, trimesh.Trimesh]]:
+    """The container's interfaces on the board, outermost first, each with its mesh (file names
+    as a dataset holds them): the container, then a hollow one's inside ``wall_mm`` in (its air,
+    or a liquid of ``liquid_ior``)."""
+    out = [(Interface('container.ply', ior), board_mesh(container, size, pose))]
+    if wall_mm is not None:
+        out.append((Interface('container_inner.ply', liquid_ior or 1.0), board_mesh(container, size, pose, wall_mm)))
+    return out

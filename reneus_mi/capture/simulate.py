@@ -30,8 +30,7 @@ import numpy as np
 import trimesh
 
 from reneus_mi.capture.board import Board
-from reneus_mi.capture.placement import board_mesh, local_mesh
-from reneus_mi.capture.placement import pose_matrix
+from reneus_mi.capture.placement import interfaces, local_mesh, pose_matrix
 from reneus_mi.capture.settings import CAPTURE_FILE, CaptureSettings, to_json
 from reneus_mi.config import GAMMA
 from reneus_mi.data.cameras import look_at
@@ -240,13 +239,14 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
     rng = np.random.default_rng(rig.seed)
     c2w = cameras(rig, rng)
     os.makedirs(truth, exist_ok=True)
-    # Outermost first: the container, then a hollow one's inside (air or liquid).
-    interfaces = [('container.ply', 0.0, rig.ior, 1.0)]
-    if rig.wall_mm is not None:
-        interfaces.append(('container_inner.ply', rig.wall_mm, rig.liquid_ior or 1.0, rig.ior))
-    for name, inset, _, _ in interfaces:
-        write_container(board_mesh(rig.container, rig.size_mm, rig.pose, inset), os.path.join(truth, name),
-                        normals=rig.container != 'box')
+    # Shaded with the normals the reneus integrator gives the same files.
+    shapes, outside = {}, 1.0
+    for interface, mesh in interfaces(rig.container, rig.size_mm, rig.ior, rig.wall_mm, rig.liquid_ior, rig.pose):
+        path = os.path.join(truth, interface.mesh)
+        write_container(mesh, path, normals=rig.container != 'box')
+        shapes[os.path.splitext(interface.mesh)[0]] = shading_mesh(path, bsdf={
+            'type': 'dielectric', 'int_ior': interface.ior, 'ext_ior': outside})
+        outside = interface.ior
     specimen = specimen_mesh(rig)
     specimen_path = os.path.join(truth, 'specimen.ply')
     write_object(specimen, specimen_path)
@@ -255,9 +255,7 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
         'integrator': {'type': 'path', 'max_depth': rig.max_depth, 'rr_depth': rig.max_depth},
         'tent': {'type': 'constant', 'radiance': {'type': 'rgb', 'value': [rig.ambient] * 3}},
         'board': board_shape(rig),
-        # Shaded with the normals the reneus integrator gives the same files.
-        **{os.path.splitext(name)[0]: shading_mesh(os.path.join(truth, name), bsdf={'type': 'dielectric', 'int_ior': n, 'ext_ior': n_out})
-           for name, _, n, n_out in interfaces},
+        **shapes,
         'specimen': {'type': 'ply', 'filename': specimen_path,
                      'bsdf': {'type': 'diffuse', 'reflectance': {'type': 'mesh_attribute', 'name': 'vertex_color'}}},
     })

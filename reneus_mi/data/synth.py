@@ -301,9 +301,10 @@ def _render(folder, mesh, layers, K, c2w, *, res, spp, seed, max_depth, subsets,
     return images, masks, gt_path, noise
 
 
-def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, absorption=None, offset=None,
-                  scale: float | None = None) -> Dataset:
-    """``ds`` as a calibration would leave it: the container's IOR taken as ``ior``, its medium's
+def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, inner_ior: float | None = None,
+                  absorption=None, offset=None, scale: float | None = None) -> Dataset:
+    """``ds`` as a calibration would leave it: the container's IOR taken as ``ior``, the IOR
+    inside its innermost interface (a jar's liquid) as ``inner_ior``, its medium's
     absorption as ``absorption`` (RGB per unit), or the
     container shifted by ``offset`` (a fraction of its largest extent, per axis) and scaled
     by ``scale`` about its centre (written to ``folder/container_miscalibrated.ply``). The
@@ -317,6 +318,8 @@ def miscalibrated(ds: Dataset, folder: str, *, ior: float | None = None, absorpt
     out = dataclasses.replace(ds)
     if ior is not None:
         out.ior = ior
+    if inner_ior is not None:
+        out.inner = (*ds.inner[:-1], dataclasses.replace(ds.inner[-1], ior=inner_ior))
     if absorption is not None:
         out.absorption = np.broadcast_to(np.asarray(absorption, np.float64), (3,)).copy()
     if offset is not None or scale is not None:

@@ -210,3 +210,23 @@ def test_absorbing_container_is_written_as_its_interior_medium(tmp_path):
     clear = str(tmp_path / 'clear.xml')
     write_scene(dataclasses.replace(ds, absorption=None), clear)
     assert medium_absorption([s for s in mi.load_file(clear).shapes() if s.id() == 'container'][0]) is None
+
+
+def test_hollow_container_gets_one_more_interface_event(tmp_path):
+    """A case's (or a jar's) scene follows one interface event more than a block's: the
+    specimen's reflection in the far inner wall (scene_xml.hollow_depth); --set keeps its own."""
+    from reneus_mi.data.dataset import Interface
+    ds = make_dataset(tmp_path)
+    cavity = str(tmp_path / 'meshes' / 'cavity.ply')
+    trimesh.creation.box(extents=(0.8, 0.6, 0.4)).apply_translation((0.2, -0.1, 0.05)).export(cavity)
+    hollow = dataclasses.replace(ds, inner=(Interface(cavity, 1.0),))
+
+    def depth(xml):
+        found = ET.parse(xml).getroot().find("integrator/integer[@name='max_depth']")
+        return None if found is None else int(found.get('value'))
+    for name, data, settings, expected in (('block', ds, {}, None), ('case', hollow, {}, 3),
+                                           ('given', hollow, {'max_depth': 2}, 2)):
+        xml = str(tmp_path / f'{name}.xml')
+        write_scene(data, xml, **settings)
+        assert depth(xml) == expected, name
+    assert mi.load_file(str(tmp_path / 'case.xml')).integrator().model.render.max_depth == 3

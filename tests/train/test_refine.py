@@ -37,10 +37,12 @@ VIEWS, RES = 24, 96
 #: ambient 0.7972, pose errors 0.0015 / 0.0014 / 0.003 rad, half their tolerances). The
 #: absorption, from a grey guess, settles by step 350 of 600 (0.1625, 0.358, 0.703 for the true
 #: 0.15, 0.35, 0.70; 300 steps ended at 0.116, 0.301, 0.548, still on its way).
-ITERATIONS = {'ior': 1000, 'ambient': 200, 'pose': 200, 'absorption': 600}
+ITERATIONS = {'ior': 1000, 'ambient': 200, 'pose': 200, 'absorption': 600, 'inner_ior': 600}
 #: The amber photographs' absorption per unit (the block is about 2 across: it keeps about 74 %,
 #: 50 % and 25 % of red, green and blue), and the guess a run starts from.
 AMBER, AMBER_GUESS = (0.15, 0.35, 0.7), (0.3, 0.3, 0.3)
+#: The jar's liquid (ethanol) and the guess a run starts from (water).
+LIQUID, LIQUID_GUESS = 1.36, 1.33
 #: The miscalibrated container: shifted by this fraction of its size, scaled by SCALE.
 OFFSET, SCALE = (0.02, -0.01, 0.005), 1.02
 
@@ -59,6 +61,18 @@ def amber_photographs(tmp_path_factory):
     return folder
 
 
+@pytest.fixture(scope='module')
+def jar_photographs(tmp_path_factory):
+    folder = tmp_path_factory.mktemp('jar')
+    make_dataset('statuette', str(folder), views=VIEWS, res=RES, spp=64, subsets=('box',), container='jar',
+                 liquid_ior=LIQUID)
+    return folder
+
+
+#: The photographs each quantity is refined on.
+PHOTOGRAPHS = {'absorption': 'amber_photographs', 'inner_ior': 'jar_photographs'}
+
+
 def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]:
     ds = load_dataset(str(folder / 'box'))
     settings = {}
@@ -66,6 +80,8 @@ def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]
         ds = miscalibrated(ds, str(folder), ior=1.40)
     elif quantity == 'absorption':
         ds = miscalibrated(ds, str(folder), absorption=AMBER_GUESS)
+    elif quantity == 'inner_ior':
+        ds = miscalibrated(ds, str(folder), inner_ior=LIQUID_GUESS)
     elif quantity == 'ambient':
         settings['ambient'] = 0.7
     else:
@@ -78,7 +94,8 @@ def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]
     if refine:
         changes.update({'ior': {'train.refine.ior': True}, 'ambient': {'train.refine.light': 'ambient'},
                         'pose': {'train.refine.pose': True},
-                        'absorption': {'train.refine.absorption': True}}[quantity])
+                        'absorption': {'train.refine.absorption': True},
+                        'inner_ior': {'train.refine.inner_ior': True}}[quantity])
     spec.config = replace(spec.config, **changes)
     out = str(folder / f'run_{quantity}_{"refined" if refine else "fixed"}')
     result = runs.open_spec(spec, out).train(progress=False)
@@ -100,9 +117,9 @@ def _pose_errors(values: dict, truth_container: str) -> tuple[float, float, floa
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize('quantity', ['ior', 'ambient', 'pose', 'absorption'])
+@pytest.mark.parametrize('quantity', ['ior', 'ambient', 'pose', 'absorption', 'inner_ior'])
 def test_refining_recovers_the_truth_and_the_shape(quantity, request):
-    photographs = request.getfixturevalue('amber_photographs' if quantity == 'absorption' else 'photographs')
+    photographs = request.getfixturevalue(PHOTOGRAPHS.get(quantity, 'photographs'))
     if quantity == 'pose':
         # On two threads the order of float sums varies, and over 200 steps it can carry the
         # pose's estimate (y scale 0.0044, rotation 0.0059 rad in one suite run; 0.0007-0.0012
@@ -120,6 +137,8 @@ def test_refining_recovers_the_truth_and_the_shape(quantity, request):
         assert np.abs(np.array(values['light.radiance']) - 0.8).max() < 0.01
     elif quantity == 'absorption':
         assert np.abs(np.array(values['container.sigma_a']) - AMBER).max() < 0.03
+    elif quantity == 'inner_ior':
+        assert abs(values['container.inner_ior'][-1] - LIQUID) < 0.01
     else:
         shift, scale, angle = _pose_errors(values, str(photographs / 'box.ply'))
         print(f'pose errors: shift {shift:.4f} of the size, scale {scale:.4f}, rotation {angle:.4f} rad')
