@@ -9,7 +9,7 @@ import warnings
 
 import cv2
 
-from reneus_mi.capture import export, settings as settings_mod
+from reneus_mi.capture import export, photos, settings as settings_mod
 from reneus_mi.capture.pipeline import run
 from reneus_mi.utils import guards, interrupt
 from reneus_mi.utils.errors import exit_on_error
@@ -47,6 +47,7 @@ def main(argv=None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter('always')
             warnings.showwarning = _one_line
+            photos.check_folder(args.photos)
             s = settings_mod.resolve(args, args.photos, args.settings)
             report = run(s, args.photos, args.output)
     if not args.quiet:

@@ -35,6 +35,10 @@ LAYOUT_TOLERANCE = 0.25
 REFINE_WINDOW = 0.15
 #: Share of a photograph's markers that must fit the board's layout.
 LAYOUT_INLIERS = 0.6
+#: Longest side of the copy the markers are looked for in: a 24-megapixel photograph's
+#: markers are hundreds of pixels wide, and finding them costs in proportion to the pixels.
+#: The corners are refined in the photograph itself.
+FIND_SIZE = 2000
 
 
 @dataclasses.dataclass
@@ -119,16 +123,20 @@ class Board:
         return self.cv.generateImage((width, height), marginSize=0, borderBits=1)
 
     def detect(self, gray: np.ndarray) -> Detection:
-        """The markers and ChArUco corners in an 8-bit grey photograph."""
+        """The markers and ChArUco corners in an 8-bit grey photograph: the markers in a copy
+        of at most :data:`FIND_SIZE` pixels, the corners at full size."""
+        scale = min(1.0, FIND_SIZE / max(gray.shape))
+        find = gray if scale == 1.0 else cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
         params = cv2.aruco.DetectorParameters()
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
         markers = cv2.aruco.ArucoDetector(self.aruco_dictionary(), params)
-        marker_corners, marker_ids, _ = markers.detectMarkers(gray)
+        marker_corners, marker_ids, _ = markers.detectMarkers(find)
         empty = Detection(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0, int), np.zeros((0, 4, 2)))
         if marker_ids is None or len(marker_ids) == 0:
             return empty
         marker_ids = np.asarray(marker_ids).ravel()
-        corners_m = np.asarray(marker_corners, np.float64).reshape(-1, 4, 2) + 0.5
+        corners_m = (np.asarray(marker_corners, np.float64).reshape(-1, 4, 2) + 0.5) / scale
+        marker_corners = (corners_m - 0.5).astype(np.float32)
         on_board = marker_ids < self.n_markers
         result = Detection(empty.ids, empty.pixels, marker_ids, corners_m)
         if not on_board.any():

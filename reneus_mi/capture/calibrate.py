@@ -58,6 +58,10 @@ class View:
     tvec: np.ndarray = None
     #: RMS reprojection error (pixels) of the used corners.
     rms: float = float('nan')
+    #: Standard deviations of the pose from the solve's Jacobian: rotation (degrees, the
+    #: rotation vector's) and translation (mm, the camera frame's).
+    rotation_std_deg: float = float('nan')
+    translation_std_mm: float = float('nan')
 
     @property
     def c2w(self) -> np.ndarray:
@@ -81,6 +85,8 @@ class Calibration:
     dropped: dict[str, str]
     #: RMS reprojection error of all used corners (pixels).
     rms: float
+    #: Standard deviations of f, cx, cy (pixels) from the solve's Jacobian.
+    K_std: np.ndarray = None
 
     def project(self, view: int, points: np.ndarray) -> np.ndarray:
         """Pixels (reneus-mi convention) of board points (N,3) in a view, with distortion."""
@@ -90,19 +96,30 @@ class Calibration:
         return px.reshape(-1, 2) + 0.5
 
 
-def _fit(board: Board, views: list[View], size: tuple[int, int]):
+def _solve(board: Board, views: list[View], size: tuple[int, int], flags: int = 0):
+    """OpenCV's solve on the views' used corners: (K in reneus-mi's convention, dist, rvecs,
+    tvecs, standard deviations of the intrinsics and of the poses)."""
     objects = [board.corners[v.ids[v.used]].astype(np.float32) for v in views]
     images = [(v.pixels[v.used] - 0.5).astype(np.float32) for v in views]
-    flags = cv2.CALIB_FIX_ASPECT_RATIO
-    K0 = np.eye(3)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(objects, images, size, K0, None, flags=flags,
-                                                     criteria=criteria)
+    _, K, dist, rvecs, tvecs, std_in, std_ex, _ = cv2.calibrateCameraExtended(
+        objects, images, size, np.eye(3), None, flags=cv2.CALIB_FIX_ASPECT_RATIO | flags, criteria=criteria)
     K = np.array(K, np.float64)
     K[:2, 2] += 0.5
-    for v, r, t in zip(views, rvecs, tvecs):
+    return (K, np.asarray(dist, np.float64).ravel()[:5], rvecs, tvecs, np.asarray(std_in, np.float64).ravel(),
+            np.asarray(std_ex, np.float64).reshape(-1, 6))
+
+
+def _fit(board: Board, views: list[View], size: tuple[int, int]):
+    """Fit the camera and every view's pose (set on the views); (K, dist, std of f, cx, cy)."""
+    K, dist, rvecs, tvecs, std_in, std_ex = _solve(board, views, size)
+    for v, r, t, e in zip(views, rvecs, tvecs, std_ex):
         v.rvec, v.tvec = np.asarray(r, np.float64).ravel(), np.asarray(t, np.float64).ravel()
-    return K, np.asarray(dist, np.float64).ravel()[:5]
+        v.rotation_std_deg = float(np.degrees(np.linalg.norm(e[:3])))
+        v.translation_std_mm = float(np.linalg.norm(e[3:]))
+    # OpenCV's order: fx, fy, cx, cy, k1, ...; with the aspect fixed fx follows fy, whose
+    # deviation is f's (fx's is 0).
+    return K, dist, std_in[[1, 2, 3]]
 
 
 def _errors(board: Board, v: View, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
@@ -143,7 +160,7 @@ def calibrate(board: Board, detections: dict[str, Detection], size: tuple[int, i
         if len(views) < MIN_VIEWS:
             raise ReneusError(f'{len(views)} photographs with enough board corners; expected at least '
                               f'{MIN_VIEWS} ({"; ".join(f"{k}: {r}" for k, r in list(dropped.items())[:3])})')
-        K, dist = _fit(board, views, size)
+        K, dist, K_std = _fit(board, views, size)
         if round_ == MAX_ROUNDS:
             break
         errors = [_errors(board, v, K, dist) for v in views]
@@ -173,10 +190,75 @@ def calibrate(board: Board, detections: dict[str, Detection], size: tuple[int, i
         v.rms = float(np.sqrt(np.mean(e ** 2)))
         squares.append(e ** 2)
     return Calibration(K=K, dist=dist, width=size[0], height=size[1], views=views, dropped=dropped,
-                       rms=float(np.sqrt(np.mean(np.concatenate(squares)))))
+                       rms=float(np.sqrt(np.mean(np.concatenate(squares)))), K_std=K_std)
 
 
 def _collinear(board: Board, v: View) -> bool:
     points = board.corners[v.ids[v.used], :2]
     spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
     return spread[-1] < 0.25 * board.square_mm * np.sqrt(len(points))
+
+
+@dataclasses.dataclass
+class Coverage:
+    """Where the board's used corners lay in the frame, over all photographs, and how far
+    the lens model is extrapolated beyond."""
+    #: Share of the frame inside the convex hull of every used corner.
+    share: float
+    #: The hull (M,2), pixels (reneus-mi convention).
+    hull: np.ndarray
+    #: Largest disagreement beyond the hull, growing from its edge, between the lens model and
+    #: one without k3 fitted to the same corners (pixels): what the model asserts where the
+    #: board never was, which the corners cannot tell.
+    extrapolated_px: float
+    #: Where that is (pixels).
+    worst: tuple[float, float]
+
+
+#: Frame points sampled per side for :func:`coverage`.
+COVERAGE_GRID = 48
+#: Above this many pixels of extrapolation the command warns.
+EXTRAPOLATION_WARN_PX = 1.0
+
+
+def coverage(board: Board, cal: Calibration) -> Coverage:
+    """The frame's coverage by the board over all photographs (:class:`Coverage`).
+
+    Two lens models that explain the corners alike (the fitted one, and one refitted with k3
+    held at 0) may part beyond them: the largest growth of their disagreement from the hull's
+    edge to a pixel outside it says how far the dataset's pixels there can be trusted.
+    """
+    corners = np.concatenate([v.pixels[v.used] for v in cal.views])
+    hull = cv2.convexHull(corners.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+    share = cv2.contourArea(hull.astype(np.float32)) / (cal.width * cal.height)
+    xs = np.linspace(0.5, cal.width - 0.5, COVERAGE_GRID)
+    ys = np.linspace(0.5, cal.height - 0.5, COVERAGE_GRID)
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    outside = np.array([cv2.pointPolygonTest(hull.astype(np.float32), (float(x), float(y)), False) < 0
+                        for x, y in grid])
+    if not outside.any():
+        return Coverage(float(share), hull, 0.0, (float('nan'), float('nan')))
+    K2, dist2, *_ = _solve(board, cal.views, (cal.width, cal.height), cv2.CALIB_FIX_K3)
+    points = grid[outside]
+    nearest = _nearest_on_polygon(points, hull)
+
+    def disagreement(pixels):
+        return cal.K[0, 0] * (_rays(cal.K, cal.dist, pixels) - _rays(K2, dist2, pixels))
+    change = np.linalg.norm(disagreement(points) - disagreement(nearest), axis=1)
+    k = int(np.argmax(change))
+    return Coverage(float(share), hull, float(change[k]), tuple(float(c) for c in points[k]))
+
+
+def _rays(K: np.ndarray, dist: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(N,2) normalised pinhole coordinates of photograph pixels through a lens."""
+    return cv2.undistortPoints((pixels - 0.5).reshape(-1, 1, 2), opencv_K(K), dist).reshape(-1, 2)
+
+
+def _nearest_on_polygon(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """The nearest point of a closed polygon's edges to each point."""
+    a, b = poly, np.roll(poly, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum('pek,ek->pe', points[:, None] - a[None], ab) / np.maximum((ab ** 2).sum(1), 1e-12), 0, 1)
+    candidates = a[None] + t[..., None] * ab[None]
+    best = np.argmin(np.linalg.norm(candidates - points[:, None], axis=-1), axis=1)
+    return candidates[np.arange(len(points)), best]

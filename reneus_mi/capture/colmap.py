@@ -24,7 +24,6 @@ import numpy as np
 from reneus_mi.capture import photos
 from reneus_mi.capture.export import write_views
 from reneus_mi.data.checks import check_ior
-from reneus_mi.data.images import image_size
 from reneus_mi.data.undistort import distortion, output_size, pinhole_K, undistort
 from reneus_mi.geometry.container import load_container, mesh_type
 from reneus_mi.utils import guards
@@ -104,8 +103,9 @@ def convert(sparse: str, images_dir: str, container: str, ior: float, out: str, 
         elif here != size:
             raise ReneusError(f'{sparse}: camera {im.camera_id} is {here[0]}x{here[1]}, another {size[0]}x{size[1]}; '
                               'expected one image size')
-        if image_size(path, upright=False) != here:
-            raise ReneusError(f'{path}: is {image_size(path, upright=False)}, but its COLMAP camera is {here}')
+        stored = photos.header(path).stored
+        if stored != here:
+            raise ReneusError(f'{path}: is {stored[0]}x{stored[1]}, but its COLMAP camera is {here[0]}x{here[1]}')
         pose = im.cam_from_world() if callable(im.cam_from_world) else im.cam_from_world
         w2c = np.eye(4)
         w2c[:3] = np.asarray(pose.matrix(), np.float64)
@@ -120,7 +120,8 @@ def convert(sparse: str, images_dir: str, container: str, ior: float, out: str, 
     images, Ks = [], []
     for path, (K, dist) in zip(files, lenses):
         K_out = pinhole_K(K, scale)
-        images.append(np.clip(undistort(photos.read_rgb(path), K, dist, K_out, (width, height))[0], 0.0, 1.0))
+        rgb = photos.decode(photos.header(path))
+        images.append(undistort(rgb, K, dist, K_out, (width, height))[0].astype(np.float32) / 255.0)
         Ks.append(K_out)
     os.makedirs(out, exist_ok=True)
     name = 'container' + os.path.splitext(container)[1].lower()

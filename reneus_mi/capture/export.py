@@ -26,12 +26,13 @@ import numpy as np
 
 from reneus_mi.capture import overlay
 from reneus_mi.capture.board import Board
-from reneus_mi.capture.calibrate import Calibration
+from reneus_mi.capture.calibrate import Calibration, Coverage
 from reneus_mi.capture.placement import interfaces, local_mesh
 from reneus_mi.capture.settings import CaptureSettings, to_json
 from reneus_mi.data.cameras import OPENGL_FROM_OPENCV
 from reneus_mi.data.dataset import containers_json
 from reneus_mi.data.images import write_image
+from reneus_mi.data.undistort import opencv_K
 from reneus_mi.geometry.shapes import write_container
 from reneus_mi.utils.io import atomic_write_text
 
@@ -40,6 +41,9 @@ OUTPUTS = ('transforms.json', 'images', 'container.ply', 'container_inner.ply', 
            'overlays')
 #: Resolution of the written board pattern.
 BOARD_PX_PER_MM = 10.0
+#: Where a pixel's centre is, for every intrinsic matrix written (report.json, transforms.json).
+PIXEL_CONVENTION = ('the centre of the top-left pixel is at (0.5, 0.5), as in Mitsuba, COLMAP and nerfstudio; '
+                    "OpenCV puts it at (0, 0): K_photo_opencv is K_photo with cx, cy 0.5 px less")
 #: Words for the frame, said once.
 FRAME = ('board (OpenCV ChArUco: origin at the outer corner of the first square, x along the '
          'columns, y along the rows, z into the table), millimetres')
@@ -75,8 +79,9 @@ def write_views(out: str, names: list[str], images: np.ndarray, K: np.ndarray, c
 
 
 def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.ndarray,
-          images: np.ndarray, reg, light) -> dict:
-    """Write the dataset into ``out`` (checked by the caller); return the report."""
+          images: np.ndarray, reg, light, left_out: dict[str, str], cover: Coverage) -> dict:
+    """Write the dataset into ``out`` (checked by the caller); return the report. ``left_out``:
+    every photograph left out, in whichever pass, with its reason."""
     n, h, w = images.shape[:3]
     placed = interfaces(s.container, s.size_mm, s.ior, s.wall_mm, s.liquid_ior, reg.pose)
     for interface, mesh in placed:
@@ -85,17 +90,26 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
     report = {
         'frame': FRAME,
         'settings': to_json(s),
-        'camera': {'K_photo': cal.K.tolist(), 'distortion': dict(zip(('k1', 'k2', 'p1', 'p2', 'k3'), cal.dist.tolist())),
+        'camera': {'pixel_convention': PIXEL_CONVENTION,
+                   'K_photo': cal.K.tolist(), 'K_photo_opencv': opencv_K(cal.K).tolist(),
+                   'K_photo_std_px': dict(zip(('f', 'cx', 'cy'), cal.K_std.tolist())),
+                   'distortion': dict(zip(('k1', 'k2', 'p1', 'p2', 'k3'), cal.dist.tolist())),
                    'photo_size': [cal.width, cal.height], 'K': K.tolist(), 'size': [w, h],
-                   'rms_px': cal.rms},
+                   'rms_px': cal.rms,
+                   'coverage': {'share': cover.share, 'extrapolated_px': cover.extrapolated_px,
+                                'worst_at_px': list(cover.worst), 'hull_px': cover.hull.round(1).tolist()}},
         'views': [{'photo': v.name, 'corners_found': int(len(v.ids)), 'corners_used': int(v.used.sum()),
-                   'rms_px': v.rms, 'c2w': v.c2w.tolist(), 'exposure_gain': float(g),
+                   'rms_px': v.rms, 'rotation_std_deg': v.rotation_std_deg,
+                   'translation_std_mm': v.translation_std_mm, 'c2w': v.c2w.tolist(), 'exposure_gain': float(g),
                    'container_residual_px': float(r)}
                   for v, g, r in zip(cal.views, light.gains, reg.view_residuals)],
-        'left_out': cal.dropped,
+        'left_out': left_out,
         'container': {'shape': s.container, 'size_mm': list(s.size_mm), 'wall_mm': s.wall_mm,
                       'liquid_ior': s.liquid_ior, 'pose': list(reg.pose),
-                      'pose_given': s.container_pose is not None, 'residual_px': reg.residual},
+                      'pose_given': s.container_pose is not None, 'residual_px': reg.residual,
+                      'size_fit_mm': None if reg.best_size is None else list(reg.best_size),
+                      'size_fit_outline_px': None if reg.size_residuals is None else
+                      dict(zip(('stated', 'fit'), reg.size_residuals))},
         'light': {'ambient': light.ambient.tolist(), 'ambient_from': light.ambient_from,
                   'board_white': light.white.tolist(), 'board_black': light.black.tolist()},
     }
@@ -136,17 +150,24 @@ def write_overlays(out: str, images, K, c2w, board: Board, cal: Calibration, s: 
 
 def table(report: dict) -> str:
     """The per-view table the command prints."""
-    lines = [f"{'photograph':<24} {'corners':>8} {'used':>5} {'RMS px':>7} {'gain':>6} {'container px':>12}"]
+    lines = [f"{'photograph':<24} {'corners':>8} {'used':>5} {'RMS px':>7} {'sd deg':>7} {'sd mm':>6} {'gain':>6} "
+             f"{'container px':>12}"]
     for v in report['views']:
         lines.append(f"{v['photo']:<24} {v['corners_found']:>8} {v['corners_used']:>5} {v['rms_px']:>7.3f} "
+                     f"{v['rotation_std_deg']:>7.3f} {v['translation_std_mm']:>6.3f} "
                      f"{v['exposure_gain']:>6.3f} {v['container_residual_px']:>12.2f}")
     for name, reason in report['left_out'].items():
         lines.append(f'{name:<24} left out: {reason}')
     cam = report['camera']
     d = cam['distortion']
-    lines.append(f"camera: f {cam['K_photo'][0][0]:.2f} px, principal point ({cam['K_photo'][0][2]:.2f}, "
-                 f"{cam['K_photo'][1][2]:.2f}), k1 {d['k1']:.4f} k2 {d['k2']:.4f} p1 {d['p1']:.5f} "
+    sd = cam['K_photo_std_px']
+    lines.append(f"camera: f {cam['K_photo'][0][0]:.2f} ± {sd['f']:.2f} px, principal point "
+                 f"({cam['K_photo'][0][2]:.2f} ± {sd['cx']:.2f}, {cam['K_photo'][1][2]:.2f} ± {sd['cy']:.2f}; "
+                 f"top-left pixel's centre at 0.5), k1 {d['k1']:.4f} k2 {d['k2']:.4f} p1 {d['p1']:.5f} "
                  f"p2 {d['p2']:.5f} k3 {d['k3']:.4f}, RMS {cam['rms_px']:.3f} px")
+    cover = cam['coverage']
+    lines.append(f"board coverage: {cover['share']:.0%} of the frame; the lens model uncertain by up to "
+                 f"{cover['extrapolated_px']:.2f} px beyond it")
     light = report['light']
     lines.append(f"light: C_out {np.round(light['ambient'], 4).tolist()} (from the {light['ambient_from']}), "
                  f"white print {np.round(light['board_white'], 4).tolist()}")

@@ -2,11 +2,13 @@
 reneus_mi.capture PHOTOS -o DATASET`` (:mod:`reneus_mi.capture.__main__`) and of a batch's
 capture folders.
 
-1. Find the board in every photograph (:mod:`~reneus_mi.capture.board`); refuse, in one line,
-   a capture where no photograph shows it, or shows another dictionary or layout.
+1. Read every photograph once, in parallel, whole or refused by name
+   (:mod:`~reneus_mi.capture.photos`): find the board in it (:mod:`~reneus_mi.capture.board`)
+   and keep a copy reduced to the dataset's size; refuse, in one line, a capture where no
+   photograph shows the board, or shows another dictionary or layout.
 2. Calibrate (:mod:`~reneus_mi.capture.calibrate`), leaving out photographs that cannot take part.
-3. Undistort every photograph to the dataset's pinhole camera, scaled by ``--max-size`` or
-   ``--downscale`` (:mod:`~reneus_mi.data.undistort`; memory checked first).
+3. Undistort every reduced copy to the dataset's pinhole camera, scaled by ``--max-size`` or
+   ``--downscale`` (:mod:`~reneus_mi.data.undistort`; memory checked before reading).
 4. Find the container (:mod:`~reneus_mi.capture.register`), or take ``--container-pose``.
 5. Calibrate again without the corners seen through the container, undistort again, refine
    the container's place from the first one.
@@ -20,14 +22,16 @@ from __future__ import annotations
 import os
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from reneus_mi.capture import board as board_mod
 from reneus_mi.capture import export, photos, settings as settings_mod
 from reneus_mi.capture.board import Board
-from reneus_mi.capture.calibrate import Calibration, calibrate
+from reneus_mi.capture.calibrate import EXTRAPOLATION_WARN_PX, Calibration, calibrate, coverage
 from reneus_mi.capture.exposure import measure
 from reneus_mi.capture.placement import board_mesh
 from reneus_mi.capture.register import Outline, register
@@ -40,40 +44,45 @@ from reneus_mi.utils.errors import ReneusError
 EXCLUSION_MARGIN_PX = 3.0
 
 
-def detect_all(board: Board, files: list[str]) -> tuple[dict, tuple[int, int]]:
-    """The board's corners in every photograph, by name; the photographs' common size.
+#: Why a photograph without the board's corners is left out.
+NO_CORNERS = 'no board corners found (is the board in the picture, sharp and not too oblique?)'
+#: Photographs decoded at once (each holds its full-size pixels while the board is found).
+WORKERS = max(1, min(4, os.cpu_count() or 1))
+
+
+def read_all(board: Board, shots: list[photos.Photo], kept: tuple[int, int]) -> tuple[dict, dict]:
+    """Every photograph decoded once, in parallel: the board's corners found in it (by name)
+    and the copy of it reduced to ``kept`` (width, height) that the dataset is made from.
 
     Refuses (one line) a capture where no photograph shows a marker of the board's
     dictionary, or whose markers do not fit the stated layout; a photograph without corners
     is left out with a warning.
     """
-    detections, size = {}, None
-    for path in files:
-        gray = photos.read_gray(path)
-        here = (gray.shape[1], gray.shape[0])
-        if size is None:
-            size, first = here, path
-        elif here != size:
-            raise ReneusError(f'{path}: photograph is {here[0]}x{here[1]}, but {os.path.basename(first)} '
-                              f'is {size[0]}x{size[1]}; expected one camera at one size')
-        detections[os.path.basename(path)] = board.detect(gray)
-    check_board(board, detections, files)
+    def one(photo):
+        rgb = photos.decode(photo)
+        return board.detect(photos.grey(rgb)), photos.reduce(rgb, kept)
+    with ThreadPoolExecutor(WORKERS) as pool:
+        results = list(tqdm(pool.map(one, shots), total=len(shots), desc='read, find the board', unit='photo',
+                            disable=None, leave=False))
+    detections = {p.name: det for p, (det, _) in zip(shots, results)}
+    reduced = {p.name: image for p, (_, image) in zip(shots, results)}
+    check_board(board, detections, shots, reduced)
     for name, det in list(detections.items()):
         if len(det.ids) == 0:
-            warnings.warn(f'{name}: left out: no board corners found (is the board in the picture, '
-                          'sharp and not too oblique?)')
+            warnings.warn(f'{name}: left out: {NO_CORNERS}')
             del detections[name]
-    return detections, size
+    return detections, reduced
 
 
-def check_board(board: Board, detections: dict, files: list[str]) -> None:
+def check_board(board: Board, detections: dict, shots: list[photos.Photo], reduced: dict) -> None:
     """One-line refusals for a board that the photographs do not show as stated."""
-    folder = os.path.dirname(files[0])
+    folder = os.path.dirname(shots[0].path)
     if not any(len(d.marker_ids) for d in detections.values()):
-        other = board_mod.other_dictionary(photos.read_gray(files[0]), board)
-        hint = (f'; {os.path.basename(files[0])} shows markers of {other} (check --dictionary)'
+        first = shots[0].name
+        other = board_mod.other_dictionary(photos.grey(reduced[first]), board)
+        hint = (f'; {first} shows markers of {other} (check --dictionary)'
                 if other else ' (is the board in the pictures? check --dictionary)')
-        raise ReneusError(f'{folder}: no ArUco marker of {board.dictionary} in any of the {len(files)} '
+        raise ReneusError(f'{folder}: no ArUco marker of {board.dictionary} in any of the {len(shots)} '
                           f'photographs{hint}')
     beyond = max(int(d.marker_ids.max()) for d in detections.values() if len(d.marker_ids))
     if beyond >= board.n_markers:
@@ -89,12 +98,15 @@ def check_board(board: Board, detections: dict, files: list[str]) -> None:
                           f'expected a ChArUco board of {board.describe()} (check --squares, --marker-mm)')
 
 
-def load_views(files: dict, cal: Calibration, out_size, K_out) -> tuple[np.ndarray, np.ndarray]:
-    """Every calibrated photograph undistorted to the dataset's pinhole camera."""
+def load_views(reduced: dict, cal: Calibration, out_size, K_out) -> tuple[np.ndarray, np.ndarray]:
+    """Every calibrated photograph undistorted to the dataset's pinhole camera, from its
+    reduced copy (the intrinsics follow the reduction exactly)."""
     images, valid = [], []
     for view in cal.views:
-        image, ok = undistort(photos.read_rgb(files[view.name]), cal.K, cal.dist, K_out, out_size)
-        images.append(np.clip(image, 0.0, 1.0))
+        copy = reduced[view.name]
+        K = np.diag([copy.shape[1] / cal.width, copy.shape[0] / cal.height, 1.0]) @ cal.K
+        image, ok = undistort(copy, K, cal.dist, K_out, out_size)
+        images.append(image.astype(np.float32) / 255.0)
         valid.append(ok)
     return np.stack(images), np.stack(valid)
 
@@ -131,14 +143,16 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
     start = time.perf_counter()
     out = guards.check_output_dir(out, inputs=[photos_dir], allow=export.OUTPUTS, what='dataset folder')
     board = Board.from_settings(s)
-    files = photos.list_photos(photos_dir)
-    by_name = {os.path.basename(f): f for f in files}
-    detections, size = detect_all(board, files)
+    shots = photos.orientations(photos.list_photos(photos_dir))
+    size = shots[0].size
     width, height, scale = output_size(*size, max_size=s.max_size, downscale=s.downscale)
-    photos.check_memory(len(detections), size, (width, height))
+    photos.check_memory(len(shots), size, (width, height), kept=(width, height), workers=WORKERS)
+    detections, reduced = read_all(board, shots, (width, height))
+    left_out = {p.name: NO_CORNERS for p in shots if p.name not in detections}
     cal = calibrate(board, detections, size)
+    left_out.update(cal.dropped)
     K_out = pinhole_K(cal.K, scale)
-    images, valid = load_views(by_name, cal, (width, height), K_out)
+    images, valid = load_views(reduced, cal, (width, height), K_out)
     c2w = np.stack([v.c2w for v in cal.views])
     names = [v.name for v in cal.views]
     try:
@@ -152,9 +166,17 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
     # Corners seen through the glass leave the calibration; the place is refined from the first.
     exclude = seen_through(cal, s.container, s.size_mm, reg.pose)
     cal = calibrate(board, {n: detections[n] for n in names}, size, exclude=exclude)
+    left_out.update({n: f'{r} (once the corners seen through the container were left out)'
+                     for n, r in cal.dropped.items()})
+    cover = coverage(board, cal)
+    if cover.extrapolated_px > EXTRAPOLATION_WARN_PX:
+        warnings.warn(f'the board covered {cover.share:.0%} of the frame; beyond it the lens model is '
+                      f'uncertain by up to {cover.extrapolated_px:.1f} px (at x={cover.worst[0]:.0f}, '
+                      f'y={cover.worst[1]:.0f}), and so are the dataset\'s pixels there: take photographs '
+                      'with the board in the frame\'s corners too')
     K_out = pinhole_K(cal.K, scale)
     names = [v.name for v in cal.views]
-    images, valid = load_views(by_name, cal, (width, height), K_out)
+    images, valid = load_views(reduced, cal, (width, height), K_out)
     c2w = np.stack([v.c2w for v in cal.views])
     reg = register(images, valid, K_out, c2w, board, s.container, s.size_mm, pose=s.container_pose,
                    start=reg.pose)
@@ -163,6 +185,6 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
     # The overlays first: a transforms.json, written last, says that the dataset is whole.
     export.write_overlays(out, images, K_out, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
-    report = export.write(out, s, board, cal, K_out, light.normalise(images), reg, light)
+    report = export.write(out, s, board, cal, K_out, light.normalise(images), reg, light, left_out, cover)
     report['seconds'] = time.perf_counter() - start
     return report

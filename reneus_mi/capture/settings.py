@@ -59,52 +59,82 @@ class CaptureSettings:
     """The container's place on the board, x,y,yaw (mm, mm, degrees), when it is not found
     automatically: the centre of its footprint and the angle of its W side from the board's x."""
 
-    def check(self, where: str) -> 'CaptureSettings':
-        """Raise naming the first setting that is missing, out of range or contradicts another."""
+    def check(self, where: str | dict[str, str]) -> 'CaptureSettings':
+        """Raise one line naming every setting that is missing, out of range or contradicts
+        another, each with where it was given: ``where`` is one place for all settings, or the
+        place of each by name (``--max-size``, the capture file; ``''``: where none was given)."""
+        def place(name: str) -> str:
+            return where if isinstance(where, str) else where.get(name, where.get('', 'capture settings'))
+        problems = []
+
+        def problem(name: str, text: str) -> None:
+            problems.append(f'{place(name)}: {text}')
         for name in ('squares', 'square_mm', 'marker_mm', 'size_mm', 'ior'):
             if getattr(self, name) is None:
-                raise ReneusError(f"{where}: {name} is not given; expected --{_flag(name)} "
-                                  f"or '{name}' in {CAPTURE_FILE}")
+                problem('', f"{name} is not given; expected --{_flag(name)} or '{name}' in {CAPTURE_FILE}")
+        if problems:
+            _raise(problems)
         if self.board != 'charuco':
-            raise ReneusError(f"{where}: board={self.board!r}; expected 'charuco'")
+            problem('board', f"board={self.board!r}; expected 'charuco'")
         if self.container not in CONTAINERS:
-            raise ReneusError(f"{where}: container={self.container!r}; expected one of {', '.join(CONTAINERS)}")
+            problem('container', f"container={self.container!r}; expected one of {', '.join(CONTAINERS)}")
         columns, rows = self.squares
         if min(columns, rows) < 3:
-            raise ReneusError(f"{where}: squares={columns}x{rows}; expected at least 3x3 squares")
-        if not 0 < self.marker_mm < self.square_mm:
-            raise ReneusError(f"{where}: marker_mm={self.marker_mm:g} and square_mm={self.square_mm:g} "
-                              "contradict each other; expected a marker smaller than its square")
+            problem('squares', f"squares={columns}x{rows}; expected at least 3x3 squares")
+        for name in ('square_mm', 'marker_mm', 'wall_mm'):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                problem(name, f"{name}={value:g}; expected a positive size in millimetres")
         if min(self.size_mm) <= 0:
-            raise ReneusError(f"{where}: size_mm={_x(self.size_mm)}; expected positive sizes")
-        width, depth, _ = self.size_mm
-        board = (columns * self.square_mm, rows * self.square_mm)
-        if max(width, depth) > max(board) or width * depth > board[0] * board[1]:
-            raise ReneusError(f"{where}: size_mm={_x(self.size_mm)} and the board "
-                              f"({_x(board)} mm: squares {columns}x{rows} of {self.square_mm:g} mm) "
-                              "contradict each other; expected a container that stands on the board")
-        if self.container == 'cylinder' and width != depth:
-            raise ReneusError(f"{where}: size_mm={_x(self.size_mm)} for a cylinder; expected "
-                              "diameter x diameter x height (equal first two)")
+            problem('size_mm', f"size_mm={_x(self.size_mm)}; expected positive sizes")
+        sizes_make_sense = not problems     # the comparisons below need every size positive
         for name in ('ior', 'liquid_ior'):
             value = getattr(self, name)
             if value is not None and not 1.0 < value <= 3.0:
-                raise ReneusError(f"{where}: {name}={value:g}; expected a number in (1, 3] "
-                                  f"({'glass: about 1.5' if name == 'ior' else 'ethanol: 1.36'})")
-        if self.wall_mm is not None and not 0 < 2 * self.wall_mm < min(self.size_mm):
-            raise ReneusError(f"{where}: wall_mm={self.wall_mm:g} and size_mm={_x(self.size_mm)} contradict "
-                              "each other; expected a positive wall thinner than half the smallest size")
+                problem(name, f"{name}={value:g}; expected a number in (1, 3] "
+                              f"({'glass: about 1.5' if name == 'ior' else 'ethanol: 1.36'})")
+        if sizes_make_sense:
+            self._compare_sizes(problem)
         if self.liquid_ior is not None and self.wall_mm is None:
-            raise ReneusError(f"{where}: liquid_ior={self.liquid_ior:g} without wall_mm; expected the "
-                              "thickness of the walls that hold the liquid (--wall-mm)")
+            problem('liquid_ior', f"liquid_ior={self.liquid_ior:g} without wall_mm; expected the thickness "
+                                  "of the walls that hold the liquid (--wall-mm)")
         if self.max_size is not None and self.downscale is not None:
-            raise ReneusError(f"{where}: max_size={self.max_size} and downscale={self.downscale:g} "
-                              "both given; expected one of them")
+            problem('max_size', f"max_size={self.max_size} and downscale={self.downscale:g} both given; "
+                                "expected one of them")
         if self.max_size is not None and self.max_size < 64:
-            raise ReneusError(f"{where}: max_size={self.max_size}; expected at least 64 pixels")
+            problem('max_size', f"max_size={self.max_size}; expected at least 64 pixels")
         if self.downscale is not None and not self.downscale >= 1.0:
-            raise ReneusError(f"{where}: downscale={self.downscale:g}; expected a factor >= 1")
+            problem('downscale', f"downscale={self.downscale:g}; expected a factor >= 1")
+        if problems:
+            _raise(problems)
         return self
+
+    def _compare_sizes(self, problem) -> None:
+        """The checks between sizes, each positive: marker and square, container and board, a
+        cylinder's diameters, the walls."""
+        columns, rows = self.squares
+        if not self.marker_mm < self.square_mm:
+            problem('marker_mm', f"marker_mm={self.marker_mm:g} and square_mm={self.square_mm:g} contradict "
+                                 "each other; expected a marker smaller than its square")
+        width, depth, _ = self.size_mm
+        board = (columns * self.square_mm, rows * self.square_mm)
+        if max(width, depth) > max(board) or width * depth > board[0] * board[1]:
+            problem('size_mm', f"size_mm={_x(self.size_mm)} and the board ({_x(board)} mm: squares "
+                               f"{columns}x{rows} of {self.square_mm:g} mm) contradict each other; expected a "
+                               "container that stands on the board")
+        if self.container == 'cylinder' and width != depth:
+            problem('size_mm', f"size_mm={_x(self.size_mm)} for a cylinder; expected diameter x diameter x "
+                               "height (equal first two)")
+        if self.wall_mm is not None and not 2 * self.wall_mm < min(self.size_mm):
+            problem('wall_mm', f"wall_mm={self.wall_mm:g} and size_mm={_x(self.size_mm)} contradict each "
+                               "other; expected a positive wall thinner than half the smallest size")
+
+
+def _raise(problems: list[str]) -> None:
+    """All the settings' problems in one line."""
+    if len(problems) == 1:
+        raise ReneusError(problems[0])
+    raise ReneusError(f'{len(problems)} problems with the capture settings: ' + '; '.join(problems))
 
 
 def _flag(name: str) -> str:
@@ -180,17 +210,23 @@ def resolve(args: argparse.Namespace | dict, photos: str, settings_file: str | N
     unknown = sorted(set(stored) - set(names))
     if unknown:
         raise ReneusError(f"{path}: unknown setting(s) {', '.join(unknown)}; expected some of {', '.join(names)}")
-    values = {}
+    values, where, problems = {}, {'': path if stored else 'capture settings'}, []
     for name in names:
-        flag = _parse(name, given.get(name), f'--{_flag(name)}')
-        kept = _parse(name, stored.get(name), path)
+        try:
+            flag = _parse(name, given.get(name), f'--{_flag(name)}')
+            kept = _parse(name, stored.get(name), path)
+        except ReneusError as e:
+            problems.append(str(e))
+            continue
         if flag is not None and kept is not None and flag != kept:
-            raise ReneusError(f"--{_flag(name)} {given[name]} contradicts {name}={stored[name]!r} in "
-                              f"{path}; expected one value (give it once)")
-        value = flag if flag is not None else kept
-        if value is not None:
-            values[name] = value
-    where = path if stored else 'capture settings'
+            problems.append(f"--{_flag(name)} {given[name]} contradicts {name}={stored[name]!r} in {path}; "
+                            "expected one value (give it once)")
+            continue
+        if flag is not None or kept is not None:
+            values[name] = flag if flag is not None else kept
+            where[name] = f'--{_flag(name)}' if flag is not None else path
+    if problems:
+        _raise(problems)
     return CaptureSettings(**values).check(where)
 
 

@@ -9,7 +9,7 @@ a dataset's memory is known before any photograph is decoded
 (:func:`check_images_fit`). A photograph whose EXIF orientation tag asks for it
 to be shown turned is refused by name: the cameras were posed on one of two
 pictures, and the file does not say which. The capture, which poses the cameras
-itself on the stored pixels, reads with ``upright=False`` (the tag does not apply).
+itself, reads its photographs with :mod:`reneus_mi.capture.photos`.
 """
 from __future__ import annotations
 
@@ -53,11 +53,11 @@ _ORIENTATIONS = {2: 'mirror it left to right', 3: 'turn it by 180 degrees', 4: '
                  7: 'mirror it across its anti-diagonal', 8: 'turn it 90 degrees counter-clockwise'}
 
 
-def image_size(path: str, upright: bool = True) -> tuple[int, int]:
+def image_size(path: str) -> tuple[int, int]:
     """(width, height) of an image file as stored, from its header alone.
 
-    Refuses a missing or unreadable file and, with ``upright``, an EXIF orientation other
-    than 1 (upright), by name.
+    Refuses a missing or unreadable file and an EXIF orientation other than 1 (upright), by
+    name.
     """
     if not os.path.isfile(path):
         raise ReneusError(f"{path}: image file is missing")
@@ -77,7 +77,7 @@ def image_size(path: str, upright: bool = True) -> tuple[int, int]:
         raise ReneusError(f"{path}: unreadable image ({e}); expected {READ_TYPES}") from None
     finally:
         Image.MAX_IMAGE_PIXELS = guard
-    if upright and orientation not in (None, 1):
+    if orientation not in (None, 1):
         turn = _ORIENTATIONS.get(orientation, 'turn it')
         raise ReneusError(
             f"{path}: EXIF orientation {orientation} asks to {turn} for display; expected photographs "
@@ -139,13 +139,13 @@ def check_images_fit(files: list[str], max_size: int, where: str, extra_per_pixe
     limits.check_memory(need, f'{where}: {len(files)} photographs of {w}x{h}{at} (lower it with {REDUCE_OPTION})')
 
 
-def read_image(path: str, upright: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+def read_image(path: str) -> tuple[np.ndarray, np.ndarray | None]:
     """Return ``(rgb, alpha)``: (H,W,3) float32 in [0,1], and (H,W) float32 or None.
 
     Grey images are expanded to RGB; ``alpha`` is None when the file has none. The pixels
-    as stored; ``upright`` as in :func:`image_size`.
+    as stored; refused as :func:`image_size` says.
     """
-    image_size(path, upright)
+    image_size(path)
     if os.path.splitext(path)[1].lower() in _TIFF:
         rgba, has_alpha = _read_tiff(path)
     else:

@@ -56,6 +56,57 @@ def test_container_found_on_the_board(shot, made):
     assert made['report']['container']['residual_px'] < 3.0
 
 
+def test_uncertainty_and_coverage_reported(shot, made):
+    """The solve's standard deviations bound the errors against the truth; the board covered
+    the middle of the frame, where the fitted lens and the truth part (measured: 52 % of the
+    frame, up to 7 px off in the corners, as the report says)."""
+    truth, report = shot['meta'], made['report']
+    camera = report['camera']
+    K, K_est = np.array(truth['K']), np.array(camera['K_photo'])
+    sd = camera['K_photo_std_px']
+    assert 0 < sd['f'] < 2.0 and 0 < sd['cx'] < 1.0 and 0 < sd['cy'] < 1.0, sd
+    # The truth within four standard deviations of the estimate.
+    assert abs(K_est[0, 0] - K[0, 0]) < 4 * sd['f'] + 0.05, (K_est[0, 0], K[0, 0], sd)
+    assert abs(K_est[0, 2] - K[0, 2]) < 4 * sd['cx'] and abs(K_est[1, 2] - K[1, 2]) < 4 * sd['cy'], (K_est, K, sd)
+    for view in report['views']:
+        assert 0 < view['rotation_std_deg'] < 0.2 and 0 < view['translation_std_mm'] < 1.0, view
+    cover = camera['coverage']
+    assert 0.3 < cover['share'] < 0.8
+    # What the fitted lens gets wrong in the corners, against the truth, is of the size reported.
+    from reneus_mi.capture.calibrate import _rays
+    corners = np.array([[0.5, 0.5], [K[0, 2] * 2 - 0.5, 0.5], [0.5, K[1, 2] * 2 - 0.5], K[:2, 2] * 2 - 0.5])
+    centre = K[:2, 2][None]
+    dist = np.array(list(camera['distortion'].values()))
+
+    def error(p):
+        return K[0, 0] * (_rays(K, np.array(truth['distortion']), p) - _rays(K_est, dist, p))
+    worst = np.linalg.norm(error(corners) - error(centre), axis=1).max()
+    assert 0.5 * worst < cover['extrapolated_px'] < 2.0 * worst, (worst, cover['extrapolated_px'])
+
+
+def test_cameras_written_as_opencv_projects_them(made):
+    """transforms.json's pinhole cameras, in OpenCV's convention (cx, cy less half a pixel),
+    put the board's corners where the written images show them."""
+    from reneus_mi.capture.board import Board
+    from reneus_mi.data.cameras import OPENGL_FROM_OPENCV
+    with open(made['out'] / 'transforms.json') as f:
+        meta = json.load(f)
+    board = Board(12, 9, 20.0, 15.0)
+    K = np.array([[meta['fl_x'], 0.0, meta['cx'] - 0.5], [0.0, meta['fl_y'], meta['cy'] - 0.5], [0.0, 0.0, 1.0]])
+    errors = []
+    for frame in meta['frames'][:6]:
+        image = cv2.imread(str(made['out'] / frame['file_path']), cv2.IMREAD_GRAYSCALE)
+        found = board.detect(image)
+        w2c = np.linalg.inv(np.array(frame['transform_matrix']) @ np.linalg.inv(OPENGL_FROM_OPENCV))
+        rvec, _ = cv2.Rodrigues(w2c[:3, :3])
+        px, _ = cv2.projectPoints(board.corners[found.ids], rvec, w2c[:3, 3], K, None)
+        errors.append(np.linalg.norm(px.reshape(-1, 2) - (found.pixels - 0.5), axis=1))
+    errors = np.concatenate(errors)
+    # Half a pixel off would be the other convention.
+    assert len(errors) > 200 and np.median(errors) < 0.15, np.median(errors)
+    assert 'OpenCV puts it at (0, 0)' in made['report']['camera']['pixel_convention']
+
+
 def test_exposure_and_light(shot, made):
     truth, report = shot['meta'], made['report']
     gains = np.array([{v['name']: v['gain'] for v in truth['views']}[w['photo']] for w in report['views']])

@@ -32,7 +32,7 @@ import trimesh
 from reneus_mi import evaluate, extract, optimize, scene, synth
 
 from reneus_mi import colmap as colmap_command
-from reneus_mi.capture import __main__ as capture, pipeline as capture_pipeline
+from reneus_mi.capture import __main__ as capture, photos as capture_photos, pipeline as capture_pipeline
 from reneus_mi.render import __main__ as render
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.utils import interrupt
@@ -676,12 +676,15 @@ def photo_copies(shots, folder, n, *, blank=0, settings=False):
     (['--dictionary', 'DICT_9X9_1'], ["dictionary='DICT_9X9_1'", 'expected an OpenCV ArUco dictionary']),
     (['--squares', '12x9x3'], ["squares='12x9x3'", 'expected 2 numbers like 12x9']),
     (['--wall-mm', 13], ['wall_mm=13 and size_mm=50x35x25 contradict each other', 'thinner than half']),
-    (['--wall-mm', -1], ['wall_mm=-1', 'expected a positive wall']),
+    (['--wall-mm', -1], ['--wall-mm: wall_mm=-1', 'expected a positive size in millimetres']),
+    (['--square-mm', -20], ['--square-mm: square_mm=-20', 'expected a positive size in millimetres']),
+    (['--max-size', 0], ['--max-size: max_size=0', 'expected at least 64 pixels']),
     (['--liquid-ior', 1.36], ['liquid_ior=1.36 without wall_mm', '--wall-mm']),
     (['--wall-mm', 2, '--liquid-ior', 0.9], ['liquid_ior=0.9', 'expected a number in (1, 3]']),
 ], ids=['wrong_dictionary', 'fewer_squares', 'other_layout', 'marker_larger_than_square',
         'container_larger_than_board', 'cylinder_of_two_diameters', 'two_scalings', 'unknown_dictionary',
-        'three_numbers', 'wall_thicker_than_the_case', 'negative_wall', 'liquid_without_walls',
+        'three_numbers', 'wall_thicker_than_the_case', 'negative_wall', 'negative_square', 'no_pixels',
+        'liquid_without_walls',
         'liquid_below_air'])
 def test_capture_refuses(shots, tmp_path, flags, parts):
     photos = photo_copies(shots, tmp_path / 'photos', 3)
@@ -716,13 +719,14 @@ def test_capture_photograph_without_corners_is_left_out(shots, tmp_path):
     """One warning line naming the photograph; the others go on."""
     from reneus_mi.capture.board import Board
     photos = photo_copies(shots, tmp_path / 'photos', 2, blank=1)
-    files = sorted(str(p) for p in photos.iterdir())
+    shots = capture_photos.orientations(capture_photos.list_photos(str(photos)))
     with pytest.warns(UserWarning) as caught:
-        detections, size = capture_pipeline.detect_all(Board(12, 9, 20.0, 15.0), files)
+        detections, reduced = capture_pipeline.read_all(Board(12, 9, 20.0, 15.0), shots, (320, 240))
     messages = [str(w.message) for w in caught]
     assert messages == ['blank_0.jpg: left out: no board corners found (is the board in the picture, '
                         'sharp and not too oblique?)']
-    assert sorted(detections) == sorted(f for f in os.listdir(photos) if f.startswith('IMG')) and size == (640, 480)
+    assert sorted(detections) == sorted(f for f in os.listdir(photos) if f.startswith('IMG'))
+    assert {image.shape for image in reduced.values()} == {(240, 320, 3)}
 
 
 def test_capture_container_not_found_writes_the_overlays(shots, tmp_path):
@@ -734,6 +738,103 @@ def test_capture_container_not_found_writes_the_overlays(shots, tmp_path):
     assert len(os.listdir(tmp_path / 'out' / 'overlays')) == 6
     assert not os.path.exists(tmp_path / 'out' / 'transforms.json')
 
+
+
+@pytest.mark.parametrize('size, parts', [
+    ('52x35x25', ['size_mm=52x35x25 and the photographs disagree: the outline fits them best at',
+                  'expected them within 1 mm']),
+    ('80x60x40', ['container not found: placed at', 'off the 240x180 mm board']),
+], ids=['two_millimetres_wide', 'far_too_large'])
+def test_capture_wrong_size_refused(shots, tmp_path, size, parts):
+    """A block measured wrongly (it is 50x35x25 mm) is refused, with the size the photographs
+    suggest; the overlays show why."""
+    photos = photo_copies(shots, tmp_path / 'photos', 16)
+    given = [x if x != '50x35x25' else size for x in CAPTURE]
+    message = refused(capture.main, [photos, '-o', tmp_path / 'out', *given], *parts, 'see the overlays',
+                      watch=[photos])
+    assert not os.path.exists(tmp_path / 'out' / 'transforms.json')
+    best = re.search(r'fits them best at ([\d.]+)x([\d.]+)x([\d.]+) mm', message)
+    if best:   # the size suggested is the block's
+        assert np.abs(np.array(best.groups(), float) - (50.0, 35.0, 25.0)).max() < 0.5, message
+
+
+def test_capture_report_lists_every_photograph_left_out(shots, tmp_path):
+    """Left out before the calibration (no corners) and by it: all in report.json, with why."""
+    photos = photo_copies(shots, tmp_path / 'photos', 16, blank=1)
+    assert capture.main([str(photos), '-o', str(tmp_path / 'out'), *map(str, CAPTURE), '--quiet']) == 0
+    with open(tmp_path / 'out' / 'report.json') as f:
+        report = json.load(f)
+    assert report['left_out'] == {'blank_0.jpg': capture_pipeline.NO_CORNERS}
+
+def test_capture_settings_errors_all_in_one_line(shots, tmp_path):
+    """Every wrong setting of a capture.json at once, each named with where it was given."""
+    photos = photo_copies(shots, tmp_path / 'photos', 3)
+    with open(photos / 'capture.json', 'w') as f:
+        json.dump({'squares': '12x9', 'square_mm': -20, 'marker_mm': 15, 'size_mm': '50x35x25', 'ior': 0.5,
+                   'max_size': 10}, f)
+    message = refused(capture.main, [photos, '-o', tmp_path / 'out'], '3 problems with the capture settings',
+                      'square_mm=-20', 'ior=0.5', 'max_size=10', watch=[tmp_path])
+    assert message.count('capture.json: ') == 3, message
+
+
+def test_capture_blames_the_command_line_for_its_own_values(shots, tmp_path):
+    photos = photo_copies(shots, tmp_path / 'photos', 3, settings=True)
+    message = refused(capture.main, [photos, '-o', tmp_path / 'out', '--max-size', 0],
+                      '--max-size: max_size=0; expected at least 64 pixels', watch=[tmp_path])
+    assert 'capture.json' not in message
+
+
+@pytest.mark.parametrize('kind', ['missing', 'file'])
+def test_capture_photos_folder_named_as_such(shots, tmp_path, kind):
+    photos = tmp_path / 'photos'
+    if kind == 'file':
+        shutil.copy(os.path.join(shots, 'IMG_0001.jpg'), photos)
+    part = 'photographs folder does not exist' if kind == 'missing' else 'is a file; expected the folder'
+    refused(capture.main, [photos, '-o', tmp_path / 'out'], f'{photos}: {part}', watch=[tmp_path])
+
+
+def _torn(path):
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) // 2])
+
+
+def _cmyk(path):
+    from PIL import Image
+    Image.open(path).convert('CMYK').save(path)
+
+
+def _heic(path):
+    shutil.copy(path, path.with_suffix('.HEIC'))
+
+
+@pytest.mark.parametrize('spoil, parts', [
+    (_torn, ['IMG_0001.jpg: damaged photograph', 'truncated', 'copy it again']),
+    (_cmyk, ['IMG_0001.jpg: a CMYK photograph', 'export it again as sRGB']),
+    (_heic, ['IMG_0001.HEIC: a HEIC file', 'expected JPEG, PNG or TIFF']),
+], ids=['torn', 'cmyk', 'heic'])
+def test_capture_photograph_whole_or_refused_by_name(shots, tmp_path, spoil, parts):
+    photos = photo_copies(shots, tmp_path / 'photos', 3)
+    spoil(photos / 'IMG_0001.jpg')
+    refused(capture.main, [photos, '-o', tmp_path / 'out', *CAPTURE], *parts, watch=[photos])
+
+
+def test_capture_photograph_stored_turned_is_used_as_its_tag_shows_it(shots, tmp_path):
+    """A photograph whose pixels were stored turned by 90 degrees, with the EXIF tag that turns
+    them back, is read as the others are and named once; one without the tag is refused, naming
+    both sizes."""
+    from PIL import Image
+    photos = photo_copies(shots, tmp_path / 'photos', 3)
+    original = capture_photos.decode(capture_photos.header(str(photos / 'IMG_0002.jpg')))
+    exif = Image.Exif()
+    exif[0x0112] = 6                          # shown turned 90 degrees clockwise
+    Image.fromarray(np.rot90(original)).save(photos / 'IMG_0002.jpg', exif=exif.tobytes(), quality=95)
+    with pytest.warns(UserWarning, match=r'1 photograph\(s\) stored turned.*\(640x480, as the others\): IMG_0002.jpg'):
+        shots_ = capture_photos.orientations(capture_photos.list_photos(str(photos)))
+    turned = capture_photos.decode(shots_[1])
+    assert turned.shape == original.shape and np.abs(turned.astype(int) - original).mean() < 2.0
+    Image.fromarray(np.rot90(original)).save(photos / 'IMG_0002.jpg', quality=95)
+    refused(capture.main, [photos, '-o', tmp_path / 'out', *CAPTURE],
+            'IMG_0002.jpg: photograph is 480x640, but 2 of the 3 photographs are 640x480', watch=[photos])
 
 @pytest.mark.parametrize('model, params, parts', [
     ('OPENCV_FISHEYE', [100.0, 100.0, 32.0, 24.0, 0.1, 0.0, 0.0, 0.0], ['camera model OPENCV_FISHEYE', 'expected SIMPLE_PINHOLE']),
@@ -842,7 +943,8 @@ def wait_for(proc, ready, limit=300.0) -> None:
 
 
 def ctrl_c(proc, times=1) -> str:
-    """Send SIGINT; the process must end with status 130 and one line; return the line."""
+    """Send SIGINT; the process must end with status 130 and one line (besides the warnings it
+    gave before); return the line."""
     for n in range(times):
         proc.send_signal(signal.SIGINT)
         if n + 1 < times:   # apart: the kernel merges a signal sent while one is pending
@@ -853,7 +955,7 @@ def ctrl_c(proc, times=1) -> str:
     except subprocess.TimeoutExpired:   # a hold that never ends outlives a lost interrupt
         proc.kill()
         pytest.fail(f'the interrupt did not end the process: {proc.communicate()[1][-3000:]}')
-    lines = [line for line in err.splitlines() if line.strip() and not line.startswith('import time:')]
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith(('import time:', 'warning: '))]
     assert proc.returncode == interrupt.STATUS and len(lines) == 1, (proc.returncode, err[-3000:])
     assert lines[0].startswith('interrupted: ') and 'Traceback' not in err, err[-3000:]
     return lines[0]
