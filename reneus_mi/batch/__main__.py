@@ -85,7 +85,7 @@ def run(args) -> dict[str, RunState]:
                                    minutes=args.time, ray_address=args.ray_address, partition=args.partition,
                                    max_parallel=args.max_parallel, slurm_folder=BatchFolder(args.output).slurm)
     say = (lambda _: None) if args.quiet else functools.partial(print, flush=True)
-    return run_batch(specimens, args.output, make, redo=args.redo, say=say)
+    return run_batch(specimens, args.output, make, redo=args.redo, say=say, collection=args.collection)
 
 
 if __name__ == '__main__':

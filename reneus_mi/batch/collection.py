@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import json
 import os
 import re
@@ -46,6 +47,8 @@ from reneus_mi.utils.errors import ReneusError
 
 #: What a specimen's data folder is: a dataset, or photographs to capture a dataset from.
 KINDS = ('dataset', 'capture')
+#: The separators a CSV manifest may use, the most frequent in its header line taken.
+CSV_SEPARATORS = (',', ';', '\t')
 #: A name is a run folder's name: no separators, nothing hidden, nothing of the batch's own.
 NAME = re.compile(r'[A-Za-z0-9][A-Za-z0-9._+-]*')
 
@@ -132,9 +135,14 @@ def _manifest_rows(path: str) -> list[tuple[str, dict]]:
     """(where, row) of each specimen of a CSV or JSON manifest, empty cells left out."""
     ext = os.path.splitext(path)[1].lower()
     try:
-        with open(path, newline='') as f:
+        # utf-8-sig: Excel's "CSV UTF-8" begins with a byte order mark.
+        with open(path, newline='', encoding='utf-8-sig') as f:
             if ext == '.csv':
-                reader = csv.DictReader(f)
+                text = f.read()
+                header = text.splitlines()[0] if text.strip() else ''
+                # Excel writes ';' where the decimal mark is a comma, some tools a tab.
+                separator = max(CSV_SEPARATORS, key=header.count)
+                reader = csv.DictReader(io.StringIO(text), delimiter=separator)
                 rows = [(f'line {reader.line_num}', {k.strip(): v.strip() for k, v in row.items()
                                                      if k is not None and v is not None and v.strip()})
                         for row in reader]
@@ -147,6 +155,9 @@ def _manifest_rows(path: str) -> list[tuple[str, dict]]:
                 raise ReneusError(f'{path}: a manifest is a .csv or .json file')
     except OSError as e:
         raise ReneusError(f'{path}: cannot read the manifest ({e.strerror})') from None
+    except UnicodeDecodeError as e:
+        raise ReneusError(f'{path}: not UTF-8 text (byte {e.start}); expected a manifest saved as UTF-8 '
+                          '(Excel: "CSV UTF-8")') from None
     except (ValueError, csv.Error) as e:
         if isinstance(e, ReneusError):
             raise

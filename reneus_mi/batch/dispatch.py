@@ -44,22 +44,24 @@ HEARTBEAT = 60.0
 TICK = 0.5
 
 
-def check_folder(root: str, specimens: list[Specimen]) -> BatchFolder:
+def check_folder(root: str, specimens: list[Specimen], collection: str | None = None) -> BatchFolder:
     """RUNS_DIR may hold only what batches write (runs of this or an earlier collection, the
-    summaries, the batch's own folder), and lie apart from every specimen's data."""
+    summaries, the batch's own folder), and lie apart from every specimen's data and from a
+    collection folder (whose every subfolder is a specimen)."""
     present = os.listdir(root) if os.path.isdir(root) else []
     runs = [n for n in present if os.path.isfile(RunFolder(os.path.join(root, n)).config)]
-    guards.check_output_dir(root, inputs=[s.data for s in specimens],
+    folder = [collection] if collection is not None and os.path.isdir(collection) else []
+    guards.check_output_dir(root, inputs=[*folder, *(s.data for s in specimens)],
                             allow=(*RESERVED, *runs, *(s.name for s in specimens)), what='batch folder')
     return BatchFolder(root)
 
 
 def run_batch(specimens: list[Specimen], root: str, make_engine: Callable, *, redo=(),
-              say: Callable[[str], None] = print) -> dict[str, RunState]:
-    """Run ``specimens`` in ``root/<name>`` on the engine ``make_engine(configs, files_of,
-    tasks)`` returns; ``redo``: names (or ``'all'``) of runs to start over. Returns each
-    specimen's state when the batch ends."""
-    batch = check_folder(root, specimens)
+              say: Callable[[str], None] = print, collection: str | None = None) -> dict[str, RunState]:
+    """Run ``specimens`` (of ``collection``, a folder or a manifest) in ``root/<name>`` on the
+    engine ``make_engine(configs, files_of, tasks)`` returns; ``redo``: names (or ``'all'``)
+    of runs to start over. Returns each specimen's state when the batch ends."""
+    batch = check_folder(root, specimens, collection)
     redo = {s.name for s in specimens} if 'all' in redo else set(redo)
     unknown = sorted(redo - {s.name for s in specimens})
     if unknown:
@@ -115,7 +117,9 @@ def _drive(batch, specimens, make_engine, redo, say) -> dict[str, str]:
         if done:
             summary.write(batch, specimens)
 
-    interrupt.leaving(f'{engine.on_interrupt}; run the same command again to continue')
+    # A second Ctrl-C ends the batch at once: the engine ends what is out with it (the line is
+    # made then, so that it says what was done).
+    interrupt.leaving(lambda: f'{engine.abandon() or engine.on_interrupt}; run the same command again to continue')
     # While runs are out, Ctrl-C is the engine's to pass on (the runs' checkpoints); with
     # none out it ends the batch at once.
     with interrupt.deferred(unsaved=engine.running) as interrupted:

@@ -24,6 +24,7 @@ run's folder.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -143,6 +144,11 @@ class Engine:
     on_interrupt = 'the runs were stopped'
     """What Ctrl-C in the batch does to the runs out (the interrupted batch's last line)."""
 
+    def abandon(self) -> str | None:
+        """The batch ends at once (a second Ctrl-C): end what is still out with it, and say
+        what that left (None: nothing was out, :attr:`on_interrupt` holds)."""
+        return None
+
     def close(self) -> list[tuple[dict, dict]]:
         """Stop, as Ctrl-C would, what is still out; (task, outcome) of the tasks that ended
         in doing so (an outcome ``interrupted``: the run keeps its last checkpoint)."""
@@ -214,6 +220,21 @@ class LocalPool(Engine):
     def describe(self) -> str:
         each = f'GPU {", ".join(self.gpus)}' if self.gpus else f'{self.threads} thread(s) each'
         return f'local pool of {self.workers} worker(s), {each}'
+
+    def abandon(self) -> str | None:
+        """Kill each worker still running, with everything in its session: a worker must not
+        train on, detached, after its batch said it stopped."""
+        alive = [proc for proc, _, _ in list(self.slots.values()) if proc.poll() is None]
+        for proc in alive:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+        for proc in alive:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(5)
+        if not alive:
+            return None
+        return (f'{len(alive)} run(s) killed at the second Ctrl-C, before their checkpoint: each resumes '
+                'from its last one')
 
     def close(self) -> list[tuple[dict, dict]]:
         """Ctrl-C to each worker still running (it writes its checkpoint, then ends)."""
@@ -299,16 +320,25 @@ class RayEngine(Engine):
 
     on_interrupt = 'each run wrote its checkpoint and stopped'
 
+    def abandon(self) -> str | None:
+        """Force-cancel each task still out (Ray kills its worker), and a Ray this batch
+        started goes with the batch."""
+        out = list(self.refs)
+        for ref in out:
+            with contextlib.suppress(Exception):
+                self.ray.cancel(ref, force=True)
+        if not out:
+            return None
+        return (f'{len(out)} run(s) killed at the second Ctrl-C, before their checkpoint: each resumes from '
+                'its last one')
+
     def close(self) -> list[tuple[dict, dict]]:
         """Cancel each task still out: Ray raises KeyboardInterrupt in it, its run writes its
         checkpoint at the end of the step and ends; only then may a Ray this batch started
         go, since shutting it down kills its workers where they are."""
         for ref in self.refs:
             self.ray.cancel(ref)
-        try:
-            done, _ = self.ray.wait(list(self.refs), num_returns=len(self.refs)) if self.refs else ([], [])
-        except KeyboardInterrupt:   # a second Ctrl-C: leave at once, the runs keep older checkpoints
-            done = []
+        done, _ = self.ray.wait(list(self.refs), num_returns=len(self.refs)) if self.refs else ([], [])
         ended = self._collect(done)
         if self.started:
             self.ray.shutdown()

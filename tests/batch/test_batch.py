@@ -233,6 +233,34 @@ def test_ctrl_c_stops_the_batch_and_its_runs_resumably(collection, tmp_path, to,
     assert [e['iteration'] for e in lines] == list(range(1, 41))
 
 
+
+def test_a_second_ctrl_c_takes_the_workers_with_the_batch(collection, tmp_path):
+    """Ctrl-C twice: the batch ends at once, and its worker with it (killed before its
+    checkpoint), and the last line says so. Harmful before: the batch said 'each run wrote
+    its checkpoint and stopped' while its worker, in a session of its own, trained on to the
+    end, detached."""
+    manifest = _manifest(tmp_path, collection, [dict(name='a', data='a', **dict(LONG, **UNSAVED))])
+    runs = tmp_path / 'runs'
+    proc = _batch_process(manifest, runs)
+    log = runs / 'a' / 'log.jsonl'
+    _wait_for(lambda: log.is_file() and len(log.read_text().splitlines()) >= 5, what='five steps')
+    worker = int((runs / 'a' / '.lock').read_text().split()[0])
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.05)             # apart: the kernel merges a signal sent while one is pending
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, (out, err)
+    assert err.strip().splitlines() == [
+        'interrupted: 1 run(s) killed at the second Ctrl-C, before their checkpoint: each resumes from its last '
+        'one; run the same command again to continue'], err
+    # Gone with the batch (or a zombie whose parent is gone), not training on.
+    assert not os.path.exists(f'/proc/{worker}') or open(f'/proc/{worker}/stat').read().split()[2] == 'Z'
+    steps = len(log.read_text().splitlines())
+    time.sleep(1.0)
+    assert len(log.read_text().splitlines()) == steps < 40
+    out, err = _batch_process(manifest, runs).communicate(timeout=120)
+    assert 'a: finished' in out, (out, err)
+
 _HOLD = """
 import sys, time
 from reneus_mi.train.run_folder import RunFolder

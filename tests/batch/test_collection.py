@@ -88,3 +88,23 @@ def test_json_manifest_refusals(drawer, tmp_path):
     (tmp_path / 'm.txt').write_text('')
     with pytest.raises(ReneusError, match=r'a manifest is a \.csv or \.json file'):
         read_collection(str(tmp_path / 'm.txt'))
+
+
+@pytest.mark.parametrize('encoding, separator', [('utf-8-sig', ','), ('utf-8-sig', ';'), ('utf-8', '\t')],
+                         ids=['excel_csv_utf8', 'excel_semicolons', 'tabs'])
+def test_a_manifest_as_spreadsheets_save_it(drawer, tmp_path, encoding, separator):
+    """Excel's "CSV UTF-8" begins with a byte order mark, and where the decimal mark is a comma
+    it separates with ';'. Harmful before: "unknown column '\\ufeffname'" and "line 2: no 'data'"."""
+    path = tmp_path / 'm.csv'
+    rows = [['name', 'data', 'ior'], ['b', 'drawer/beetle', '1.55'], ['f', 'drawer/fly', '']]
+    path.write_bytes('\r\n'.join(separator.join(r) for r in rows).encode(encoding) + b'\r\n')
+    b, f = read_collection(str(path))
+    assert (b.name, b.ior, f.name, f.ior) == ('b', 1.55, 'f', None)
+    assert b.data == os.path.join(str(drawer), 'beetle')
+
+
+def test_a_manifest_not_in_utf8_named(drawer, tmp_path):
+    path = tmp_path / 'm.csv'
+    path.write_bytes('name,data\nkäfer,drawer/beetle\n'.encode('latin-1'))
+    with pytest.raises(ReneusError, match=r'not UTF-8 text .*CSV UTF-8'):
+        read_collection(str(path))

@@ -1443,11 +1443,19 @@ def test_batch_output_inside_a_dataset(data):
     refused(main, [data.parent, '-o', data / 'runs'], 'lies in the dataset folder', watch=[data.parent])
 
 
-def test_batch_output_holding_other_files(data, tmp_path):
+def test_batch_output_inside_the_collection(data):
+    """Harmful before: accepted, and the next batch read the runs folder as a stray specimen."""
     from reneus_mi.batch.__main__ import main
-    (tmp_path / 'runs').mkdir()
-    (tmp_path / 'runs' / 'mine.txt').write_text('keep')
-    refused(main, [data.parent, '-o', tmp_path / 'runs'], 'batch folder', 'holds mine.txt', watch=[tmp_path])
+    refused(main, [data.parent, '-o', data.parent / 'runs'], 'batch folder', 'lies inside the input',
+            str(data.parent), watch=[data.parent])
+
+
+def test_batch_output_holding_other_files(data, tmp_path_factory):
+    from reneus_mi.batch.__main__ import main
+    runs = tmp_path_factory.mktemp('elsewhere') / 'runs'
+    runs.mkdir()
+    (runs / 'mine.txt').write_text('keep')
+    refused(main, [data.parent, '-o', runs], 'batch folder', 'holds mine.txt', watch=[runs])
 
 
 @pytest.mark.parametrize('args, expected', [
@@ -1455,9 +1463,10 @@ def test_batch_output_holding_other_files(data, tmp_path):
     (['--workers', '0'], ('--workers 0: expected a positive number',)),
     (['--set', 'train.iterations=many'], ("train.iterations='many': expected an integer",)),
 ])
-def test_batch_options(data, tmp_path, args, expected):
+def test_batch_options(data, tmp_path_factory, args, expected):
     from reneus_mi.batch.__main__ import main
-    refused(main, [data.parent, '-o', tmp_path / 'runs', *args], *expected, watch=[tmp_path])
+    runs = tmp_path_factory.mktemp('elsewhere') / 'runs'
+    refused(main, [data.parent, '-o', runs, *args], *expected, watch=[runs.parent, data.parent])
 
 
 def test_batch_of_one_dataset(data, tmp_path):
