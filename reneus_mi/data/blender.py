@@ -16,7 +16,8 @@ camera of the same intrinsics by :func:`reneus_mi.data.undistort.undistort`, the
 undistortion of the package (pixels the photograph does not cover become black and leave
 the mask). Other camera models (fisheye, equirectangular) are refused. An image's alpha
 channel is its container mask; frames without alpha get the container's
-projection. The ReNeuS keys ``IOR``, ``mesh_outside``, ``mesh_inside`` (and
+projection. nerfstudio's per-frame ``mask_path`` (white: pixels the loss may use) is
+honoured: the training mask is the container's within it. The ReNeuS keys ``IOR``, ``mesh_outside``, ``mesh_inside`` (and
 ``scale_mat``) are described in :mod:`reneus_mi.data.dataset`.
 
 The writer puts 8-bit RGBA PNGs (alpha = mask) in ``images/`` and the meshes
@@ -32,8 +33,8 @@ import numpy as np
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
                                     has_skew, intrinsics)
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
-from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_image, reduced_size, resize,
-                                   write_image)
+from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_image, read_mask, reduced_size,
+                                   resize, write_image)
 from reneus_mi.data.undistort import DISTORTION_KEYS, distortion, undistort
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_write_text
@@ -135,11 +136,12 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
             raise ReneusError(f"{where}: expected 'file_path' and 'transform_matrix'")
         files.append(_image_path(root, str(frame['file_path']), where))
     check_images_fit(files, max_size, path, extra_per_pixel)
-    images, masks, Ks, c2ws = [], [], [], []
+    images, masks, keeps, Ks, c2ws = [], [], [], [], []
     for i, (frame, file) in enumerate(zip(frames, files)):
         where = f"{path}: frames[{i}]"
         rgb, alpha = read_image(file)
         height, width = rgb.shape[:2]
+        keep = _keep_mask(root, frame, (width, height), where)
         cam = {**top, **{k: frame[k] for k in _INTRINSIC_KEYS if k in frame}}
         K = _intrinsics(cam, width, height, where)
         dist = _distortion(cam, where)
@@ -147,10 +149,10 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
         K_out = np.diag([size[0] / width, size[1] / height, 1.0]) @ K
         if dist is not None:
             rgb, covered = undistort(rgb, K, dist, K_out, size)
-            if alpha is not None:
-                alpha = undistort(alpha, K, dist, K_out, size)[0] * covered
+            alpha, keep = (None if m is None else undistort(m, K, dist, K_out, size)[0] * covered
+                           for m in (alpha, keep))
         else:
-            rgb, alpha = resize(rgb, size), None if alpha is None else resize(alpha, size)
+            rgb, alpha, keep = (None if m is None else resize(m, size) for m in (rgb, alpha, keep))
         Ks.append(K_out)
         try:
             gl = np.asarray(frame['transform_matrix'], dtype=np.float64)
@@ -159,11 +161,31 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
         c2ws.append(check_c2w(gl, f"{where}: transform_matrix") @ OPENGL_FROM_OPENCV)
         images.append(rgb)
         masks.append(None if alpha is None else alpha >= 0.5)  # a reduced pixel half inside is inside
-    return assemble(images=images, masks=masks, K=np.stack(Ks), c2w=np.stack(c2ws),
-                    names=[os.path.basename(f) for f in files], files=files, root=root,
-                    meta_file=path, need_container=need_container,
-                    mask_sources=['from its alpha channel'] * len(files),
-                    **read_extras(meta, root, path))
+        keeps.append(None if keep is None else keep >= 0.5)
+    ds = assemble(images=images, masks=masks, K=np.stack(Ks), c2w=np.stack(c2ws),
+                  names=[os.path.basename(f) for f in files], files=files, root=root,
+                  meta_file=path, need_container=need_container,
+                  mask_sources=['from its alpha channel'] * len(files),
+                  **read_extras(meta, root, path))
+    for i, keep in enumerate(keeps):
+        if keep is not None:
+            ds.masks[i] &= keep
+    return ds
+
+
+def _keep_mask(root: str, frame: dict, size: tuple[int, int], where: str) -> np.ndarray | None:
+    """nerfstudio's per-frame ``mask_path``: the pixels the loss may use (white), as (H,W)
+    float32 at the image's size; the training mask is the container's within it."""
+    if 'mask_path' not in frame:
+        return None
+    mask_file = os.path.normpath(os.path.join(root, str(frame['mask_path'])))
+    if not os.path.isfile(mask_file):
+        raise ReneusError(f"{where}: mask_path '{frame['mask_path']}' is missing (looked for {mask_file})")
+    keep = read_mask(mask_file)
+    if keep.shape[::-1] != tuple(size):
+        raise ReneusError(f"{where}: mask_path '{frame['mask_path']}' is {keep.shape[1]}x{keep.shape[0]}, "
+                          f"but its image is {size[0]}x{size[1]}; expected a mask of the image's size")
+    return keep.astype(np.float32)
 
 
 def write(ds: Dataset, out_dir: str) -> None:

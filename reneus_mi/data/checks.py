@@ -22,9 +22,12 @@ Messages name the image file, the view and what was expected.
 """
 from __future__ import annotations
 
+import warnings
+
 import mitsuba as mi
 import numpy as np
 
+from reneus_mi.config import GAMMA
 from reneus_mi.data.cameras import pixel_rays
 from reneus_mi.geometry.container import inside
 from reneus_mi.geometry.mesh import mitsuba_mesh
@@ -153,3 +156,24 @@ def _check_masks(container, K, c2w, height, width, files, given_masks, sources, 
                 f"{files[v]}: view {v}: the mask{source} overlaps the container's projection by IoU "
                 f"{iou:.2f}; expected at least {MIN_MASK_IOU} (is this image paired with another "
                 "view's camera, or the pose wrong?)")
+
+
+#: A photograph this many times brighter or darker than the median one (linear radiance, the
+#: whole frame) is named: a dataset's photographs share one exposure, which the model assumes
+#: (a capture measures and normalises each photograph's own).
+EXPOSURE_OUTLIER = 1.5
+
+
+def warn_exposure_outliers(images, files: list[str]) -> None:
+    """Warn, naming it and the factor, of each photograph whose exposure stands out."""
+    if len(images) < 3:
+        return
+    level = np.array([np.median(np.asarray(image[::4, ::4], np.float32) ** GAMMA) for image in images])
+    typical = np.median(level)
+    if not typical > 0:
+        return
+    for factor, path in zip(level / typical, files):
+        if not 1.0 / EXPOSURE_OUTLIER <= factor <= EXPOSURE_OUTLIER:
+            warnings.warn(f'{path}: {factor:.2f}x as bright as the median photograph (linear); expected one '
+                          'exposure for all (manual exposure), or photographs that state their exposure: the '
+                          'capture command measures each from the board')

@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from reneus_mi.data.cameras import check_c2w, check_K, pixel_rays
-from reneus_mi.data.checks import check_ior, check_views
+from reneus_mi.data.checks import check_ior, check_views, warn_exposure_outliers
 from reneus_mi.data.images import read_image
 from reneus_mi.data.masks import container_masks
 from reneus_mi.geometry.container import bounding_sphere, load_container, mesh_type
@@ -432,6 +432,7 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
         if mask is not None and mask.shape != (height, width):
             raise ReneusError(f"mask of {path}: is {mask.shape[1]}x{mask.shape[0]}, "
                              f"expected the image size {width}x{height}")
+    warn_exposure_outliers(images, files)
     if container is None and need_container:
         raise ReneusError(f"{meta_file}: dataset has no container mesh "
                          "(expected a 'mesh_outside' entry naming its mesh file)")

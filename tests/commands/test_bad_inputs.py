@@ -33,9 +33,11 @@ from reneus_mi import evaluate, extract, optimize, scene, synth
 
 from reneus_mi import colmap as colmap_command
 from reneus_mi.capture import __main__ as capture, photos as capture_photos, pipeline as capture_pipeline
+from reneus_mi.data import load_dataset
 from reneus_mi.render import __main__ as render
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.utils import interrupt
+from reneus_mi.utils.errors import ReneusError
 from tiny import assert_same_state, new_trainer, train_state
 
 TRAIN = ['--iterations', '2', '--checkpoint-every', '1', '--batch-rays', '64', '--warm-up', '1',
@@ -1424,6 +1426,40 @@ def test_optimize_on_a_neus_folder_of_tiffs(world, tmp_path):
     np.testing.assert_allclose(load_dataset(str(data)).images, load_dataset(world['neus']).images, atol=1e-6)
     assert np.array_equal(load_dataset(str(data)).masks, load_dataset(world['neus']).masks)
     assert optimize.main([str(a) for a in train(world, data, tmp_path)]) == 0
+
+
+def test_dataset_mask_path_honoured(world, data):
+    """nerfstudio's per-frame mask_path (white: pixels the loss may use) narrows the container's
+    mask; one that is missing is refused by name. Harmful before: silently ignored."""
+    import cv2
+    meta = json.loads((data / 'transforms.json').read_text())
+    h, w = meta['h'], meta['w']
+    keep = np.full((h, w), 255, np.uint8)
+    keep[:, : w // 2] = 0
+    cv2.imwrite(str(data / 'keep_000.png'), keep)
+    meta['frames'][0]['mask_path'] = 'keep_000.png'
+    (data / 'transforms.json').write_text(json.dumps(meta))
+    plain, honoured = load_dataset(world['data']), load_dataset(str(data))
+    assert plain.masks[0][:, : w // 2].any() and not honoured.masks[0][:, : w // 2].any()
+    assert np.array_equal(honoured.masks[0][:, w // 2:], plain.masks[0][:, w // 2:])
+    assert np.array_equal(honoured.masks[1:], plain.masks[1:])
+    meta['frames'][1]['mask_path'] = 'keep_001.png'
+    (data / 'transforms.json').write_text(json.dumps(meta))
+    with pytest.raises(ReneusError, match=r"frames\[1\]: mask_path 'keep_001.png' is missing"):
+        load_dataset(str(data))
+
+
+def test_dataset_photograph_of_another_exposure_named(data):
+    """One photograph at 1/1.8 of the others' exposure (linear; brighter, this one's light
+    background would clip): a warning names it and the factor. Harmful before: trained on
+    without a word."""
+    from reneus_mi.data.images import read_image, write_image
+    path = data / 'images' / 'r_003.png'
+    rgb, alpha = read_image(str(path))
+    write_image(str(path), np.concatenate([(rgb ** 2.2 / 1.8) ** (1 / 2.2), alpha[..., None]], -1))
+    with pytest.warns(UserWarning, match=r'r_003.png: 0\.5\dx as bright as the median photograph') as caught:
+        load_dataset(str(data))
+    assert sum('as bright as' in str(w.message) for w in caught) == 1
 
 
 @pytest.mark.parametrize('orientation, turn', [(6, 'turn it 90 degrees clockwise'), (3, 'turn it by 180 degrees')])
