@@ -16,6 +16,8 @@ column              what
 ``name``            the run folder's name (default: the data folder's name)
 ``preset``          the preset the run starts from (default: ``--preset``)
 ``ior``             the container's IOR, over the dataset's (a capture's setting)
+``catalogNumber``   Darwin Core identifiers (also ``occurrenceID``, ``institutionCode``)
+                    that the specimen's exported package carries (:mod:`reneus_mi.export`)
 ``size_mm`` ...     a capture setting (:class:`~reneus_mi.capture.settings.CaptureSettings`:
                     the container's size, the board), over ``capture.json``
 ``train.iterations`` any setting by its dotted path, as ``--set`` takes it
@@ -41,6 +43,7 @@ from reneus_mi.batch.batch_folder import RESERVED
 from reneus_mi.capture.settings import CAPTURE_FILE
 from reneus_mi.capture.settings import CaptureSettings
 from reneus_mi.config import with_settings
+from reneus_mi.export import IDENTIFIERS
 from reneus_mi.presets import preset
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError
@@ -70,6 +73,8 @@ class Specimen:
     """The container's IOR, over the dataset's."""
     capture: dict = field(default_factory=dict)
     """Capture settings over the capture folder's capture.json (a capture's only)."""
+    identifiers: dict = field(default_factory=dict)
+    """Darwin Core identifiers (catalogNumber, ...) that its exported package carries."""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -187,13 +192,16 @@ def _from_row(row: dict, where: str, base: str, preset: str, settings: list[str]
         if not 1.0 < s.ior <= 3.0:
             raise ReneusError(f'{where}: ior={value!r}; expected a number in (1, 3]')
     for key, value in row.items():
-        if '.' in key:
+        if key in IDENTIFIERS:
+            s.identifiers[key] = str(value)
+        elif '.' in key:
             s.settings.append(f'{key}={_text(value)}')
         elif key in capture_names:
             s.capture[key] = value
         else:
-            raise ReneusError(f"{where}: unknown column {key!r}; expected name, data, preset, ior, a capture "
-                              "setting (size_mm, squares, ...) or a setting's dotted path (train.iterations)")
+            raise ReneusError(f"{where}: unknown column {key!r}; expected name, data, preset, ior, "
+                              f"{', '.join(IDENTIFIERS)}, a capture setting (size_mm, squares, ...) or a "
+                              "setting's dotted path (train.iterations)")
     return _checked(s, where)
 
 

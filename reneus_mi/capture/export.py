@@ -79,9 +79,10 @@ def write_views(out: str, names: list[str], images: np.ndarray, K: np.ndarray, c
 
 
 def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.ndarray,
-          images: np.ndarray, reg, light, left_out: dict[str, str], cover: Coverage) -> dict:
+          images: np.ndarray, reg, light, left_out: dict[str, str], cover: Coverage, exif: dict) -> dict:
     """Write the dataset into ``out`` (checked by the caller); return the report. ``left_out``:
-    every photograph left out, in whichever pass, with its reason."""
+    every photograph left out, in whichever pass, with its reason; ``exif``: the camera as the
+    photographs' EXIF states it."""
     n, h, w = images.shape[:3]
     placed = interfaces(s.container, s.size_mm, s.ior, s.wall_mm, s.liquid_ior, reg.pose)
     for interface, mesh in placed:
@@ -90,7 +91,7 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
     report = {
         'frame': FRAME,
         'settings': to_json(s),
-        'camera': {'pixel_convention': PIXEL_CONVENTION,
+        'camera': {'pixel_convention': PIXEL_CONVENTION, 'exif': exif,
                    'K_photo': cal.K.tolist(), 'K_photo_opencv': opencv_K(cal.K).tolist(),
                    'K_photo_std_px': dict(zip(('f', 'cx', 'cy'), cal.K_std.tolist())),
                    'distortion': dict(zip(('k1', 'k2', 'p1', 'p2', 'k3'), cal.dist.tolist())),

@@ -185,6 +185,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
     # The overlays first: a transforms.json, written last, says that the dataset is whole.
     export.write_overlays(out, images, K_out, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
-    report = export.write(out, s, board, cal, K_out, light.normalise(images), reg, light, left_out, cover)
+    report = export.write(out, s, board, cal, K_out, light.normalise(images), reg, light, left_out, cover,
+                          photos.camera_exif(shots[0].path))
     report['seconds'] = time.perf_counter() - start
     return report

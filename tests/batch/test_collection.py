@@ -108,3 +108,13 @@ def test_a_manifest_not_in_utf8_named(drawer, tmp_path):
     path.write_bytes('name,data\nkäfer,drawer/beetle\n'.encode('latin-1'))
     with pytest.raises(ReneusError, match=r'not UTF-8 text .*CSV UTF-8'):
         read_collection(str(path))
+
+
+def test_a_manifest_carries_identifiers(drawer, tmp_path):
+    """Darwin Core identifiers are columns: each specimen's exported package carries them."""
+    path = tmp_path / 'm.csv'
+    path.write_text('name,data,catalogNumber,occurrenceID,institutionCode\n'
+                    'b,drawer/beetle,NHM 17,urn:x:17,NHM\nf,drawer/fly,NHM 18,,\n')
+    b, f = read_collection(str(path))
+    assert b.identifiers == {'catalogNumber': 'NHM 17', 'occurrenceID': 'urn:x:17', 'institutionCode': 'NHM'}
+    assert f.identifiers == {'catalogNumber': 'NHM 18'}

@@ -1,0 +1,278 @@
+"""``python -m reneus_mi.export RUN -o PACKAGE``: a finished run as a specimen's package for a
+collection's systems (MorphoSource, a museum's collection database, a web viewer).
+
+Layout of ``PACKAGE`` (``--zip``: also ``PACKAGE.zip``)::
+
+    NAME.ply              the mesh with vertex colours, in the run's units (a capture's:
+                          millimetres in the board's frame)
+    NAME.glb              the same for web viewers (glTF: metres, y up)
+    NAME_watertight.ply   (--watertight) the mesh with its holes closed; metadata.json says
+                          how many were closed and whether it is watertight
+    metadata.json         the identifiers (Darwin Core), the media terms (Audubon Core) and the
+                          paradata: camera, board, container as given and as refined, the
+                          calibration's figures, the training's, the software and the whole
+                          configuration (docs/export.md)
+    record.csv            one header and one row: what a collection database imports
+
+NAME is the catalogue number when there is one, else the run folder's name. The
+identifiers come from the command line or, for a batch folder (every finished specimen
+exported into ``PACKAGE/NAME``), from the manifest's columns of the same names.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import trimesh
+
+import reneus_mi
+from reneus_mi.geometry.mesh import load_mesh
+from reneus_mi.geometry.surface import components
+from reneus_mi.train.run_folder import RunFolder
+from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError, exit_on_error
+from reneus_mi.utils.io import atomic_export, atomic_write_text
+
+#: Darwin Core identifiers a package carries (command-line options and manifest columns).
+IDENTIFIERS = ('catalogNumber', 'occurrenceID', 'institutionCode')
+#: Audubon Core's description of how the model was made.
+CREATION_TECHNIQUE = ('3D surface reconstructed from photographs taken through the transparent container '
+                      'that holds the specimen (ReNeuS, CVPR 2023: refraction and reflection at the '
+                      "container's surfaces traced, a neural signed distance field fitted inside), with reneus-mi")
+#: The columns of record.csv, in order.
+RECORD_COLUMNS = (*IDENTIFIERS, 'creator', 'created', 'file', 'format', 'units', 'extent_x', 'extent_y',
+                  'extent_z', 'pieces', 'container', 'container_size_mm', 'ior_given', 'ior_refined', 'psnr',
+                  'steps', 'software', 'commit')
+
+
+def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: str | None = None,
+               watertight: bool = False) -> dict:
+    """Write the package of the finished run ``run`` into ``out`` (new or empty); return its
+    metadata."""
+    folder = RunFolder(run)
+    result = folder.read_result() if os.path.isdir(run) else None
+    if result is None or result.get('failure'):
+        why = 'no result.json' if result is None else f"it failed ({result['failure']})"
+        raise ReneusError(f'{run}: not a finished run ({why}); expected the folder of a run that ended with its '
+                          'mesh')
+    out = guards.check_output_dir(out, inputs=[run], what='package folder')
+    identifiers = {k: v for k, v in (identifiers or {}).items() if v}
+    name = _file_name(identifiers.get('catalogNumber') or os.path.basename(os.path.abspath(run)))
+    os.makedirs(out, exist_ok=True)
+    mesh = load_mesh(folder.mesh)
+    atomic_export(mesh, os.path.join(out, f'{name}.ply'))
+    files = {'mesh': f'{name}.ply'}
+    if os.path.isfile(folder.web_mesh):
+        shutil.copyfile(folder.web_mesh, os.path.join(out, f'{name}.glb'))
+        files['web_mesh'] = f'{name}.glb'
+    closed = None
+    if watertight:
+        closed = _watertight(mesh)
+        atomic_export(closed.pop('mesh'), os.path.join(out, f'{name}_watertight.ply'))
+        files['watertight_mesh'] = f'{name}_watertight.ply'
+    with open(folder.config) as f:
+        config = json.load(f)
+    units = result.get('units')
+    created = datetime.datetime.fromtimestamp(os.path.getmtime(folder.result), datetime.timezone.utc)
+    metadata = {
+        'dwc': identifiers,
+        'ac': {'dcterms:format': 'model/gltf-binary' if 'web_mesh' in files else 'application/ply',
+               'ac:subtypeLiteral': '3D model', 'ac:resourceCreationTechnique': CREATION_TECHNIQUE,
+               'dc:creator': creator, 'xmp:CreateDate': created.isoformat(timespec='seconds')},
+        'files': files,
+        'mesh': {'units': units or 'the dataset\'s (it states none)', 'frame': result.get('frame'),
+                 'extent': np.asarray(mesh.extents).round(4).tolist() if len(mesh.faces) else None,
+                 'vertices': len(mesh.vertices), 'faces': len(mesh.faces), 'pieces': components(mesh),
+                 'watertight': bool(mesh.is_watertight), **({'watertight_variant': closed} if closed else {})},
+        'paradata': {
+            'capture': _capture(config.get('data')),
+            'container': _container(config.get('data'), result),
+            'training': {k: result.get(k) for k in ('iterations', 'seconds', 'psnr', 'components',
+                                                    'stopped_by_budget', 'refined')},
+            'software': {'name': 'reneus-mi', 'version': reneus_mi.__version__, 'commit': _commit()},
+            'configuration': config,
+        },
+    }
+    atomic_write_text(os.path.join(out, 'metadata.json'), json.dumps(metadata, indent=2, default=float))
+    atomic_write_text(os.path.join(out, 'record.csv'), _record(metadata, name))
+    return metadata
+
+
+def _file_name(text: str) -> str:
+    """A catalogue number as a file name (separators and spaces become _)."""
+    return ''.join(c if c.isalnum() or c in '.-_' else '_' for c in str(text)).strip('.') or 'specimen'
+
+
+def _watertight(mesh: trimesh.Trimesh) -> dict:
+    """The mesh with each hole closed by a fan of triangles around its centroid, and how many
+    were closed (a boundary that touches itself is left open, and counted)."""
+    holes = _boundary_loops(mesh)
+    vertices, faces = [np.asarray(mesh.vertices)], [np.asarray(mesh.faces)]
+    # Each boundary edge as its one face runs it; the fill runs it the other way.
+    boundary = mesh.edges[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
+    after = {}
+    for a, b in boundary:
+        after.setdefault(int(a), []).append(int(b))
+    seen, count = set(), len(mesh.vertices)
+    for start in after:
+        if start in seen or len(after[start]) != 1:
+            continue
+        loop = [start]
+        while len(after.get(loop[-1], ())) == 1 and after[loop[-1]][0] not in seen and after[loop[-1]][0] != start:
+            loop.append(after[loop[-1]][0])
+            seen.add(loop[-1])
+        seen.add(start)
+        if after.get(loop[-1]) != [start] or len(loop) < 3:
+            continue
+        centre = np.asarray(mesh.vertices)[loop].mean(axis=0)
+        vertices.append(centre[None])
+        faces.append(np.array([[b, a, count] for a, b in zip(loop, loop[1:] + loop[:1])]))
+        count += 1
+    closed = trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
+    if mesh.visual.kind == 'vertex':
+        colours = np.asarray(mesh.visual.vertex_colors)
+        extra = np.repeat(colours.mean(axis=0, keepdims=True).astype(colours.dtype), count - len(mesh.vertices), 0)
+        closed.visual.vertex_colors = np.concatenate([colours, extra])
+    left = _boundary_loops(closed)
+    return {'mesh': closed, 'holes_closed': holes - left, 'holes_left': left, 'watertight': bool(closed.is_watertight)}
+
+
+def _boundary_loops(mesh: trimesh.Trimesh) -> int:
+    """The number of holes: connected chains of edges that only one face has."""
+    if len(mesh.faces) == 0:
+        return 0
+    edges = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
+    return len(trimesh.graph.connected_components(edges, min_len=1)) if len(edges) else 0
+
+
+def _read(path: str) -> dict | None:
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def _capture(data: str | None) -> dict | None:
+    """What the capture command recorded about the photographs (None: not a capture)."""
+    report = _read(os.path.join(data, 'report.json')) if data else None
+    if report is None:
+        return None
+    camera = report['camera']
+    transforms = _read(os.path.join(data, 'transforms.json')) or {}
+    return {'camera': camera.get('exif', {}), 'photographs': len(report['views']),
+            'left_out': report.get('left_out', {}), 'photo_size': camera['photo_size'],
+            'intrinsics_px': camera['K_photo'], 'intrinsics_std_px': camera.get('K_photo_std_px'),
+            'pixel_convention': camera.get('pixel_convention'), 'distortion': camera['distortion'],
+            'reprojection_rms_px': camera['rms_px'], 'coverage': camera.get('coverage'),
+            'board': transforms.get('capture', {}).get('board'), 'container_residual_px':
+            report['container']['residual_px'], 'light': report.get('light')}
+
+
+def _container(data: str | None, result: dict) -> dict | None:
+    """The container as the dataset gave it and as the run refined it."""
+    meta = _read(os.path.join(data, 'transforms.json')) if data else None
+    if meta is None:
+        return None
+    report = _read(os.path.join(data, 'report.json')) or {}
+    given = report.get('container', {})
+    refined = result.get('refined') or {}
+    return {'shape': given.get('shape'), 'size_mm': given.get('size_mm'), 'wall_mm': given.get('wall_mm'),
+            'pose': given.get('pose'), 'ior_given': meta.get('IOR'), 'ior_refined': refined.get('container.eta'),
+            'liquid_ior_given': given.get('liquid_ior'), 'liquid_ior_refined': refined.get('container.inner_ior'),
+            'absorption_given': meta.get('absorption'), 'absorption_refined': refined.get('container.sigma_a')}
+
+
+def _commit() -> str | None:
+    """The git commit of the installed package, when it is a checkout."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(reneus_mi.__file__)))
+    try:
+        out = subprocess.run(['git', '-C', root, 'rev-parse', 'HEAD'], capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return (out.stdout.strip() or None) if out.returncode == 0 else None
+
+
+def _record(metadata: dict, name: str) -> str:
+    mesh, para = metadata['mesh'], metadata['paradata']
+    container = para['container'] or {}
+    extent = mesh['extent'] or [None] * 3
+    row = {**metadata['dwc'], 'creator': metadata['ac']['dc:creator'], 'created': metadata['ac']['xmp:CreateDate'],
+           'file': metadata['files'].get('web_mesh', metadata['files']['mesh']),
+           'format': metadata['ac']['dcterms:format'], 'units': mesh['units'],
+           'extent_x': extent[0], 'extent_y': extent[1], 'extent_z': extent[2], 'pieces': mesh['pieces'],
+           'container': container.get('shape'),
+           'container_size_mm': 'x'.join(f'{v:g}' for v in container['size_mm']) if container.get('size_mm') else None,
+           'ior_given': container.get('ior_given'), 'ior_refined': container.get('ior_refined'),
+           'psnr': para['training']['psnr'], 'steps': para['training']['iterations'],
+           'software': f"reneus-mi {para['software']['version']}", 'commit': para['software']['commit']}
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=RECORD_COLUMNS, lineterminator='\n')
+    writer.writeheader()
+    writer.writerow({k: ('' if v is None else v) for k, v in row.items()})
+    return text.getvalue()
+
+
+def export_batch(runs_dir: str, out: str, **options) -> list[str]:
+    """Every finished specimen of a batch folder into ``out/NAME``, with the identifiers its
+    manifest row gave; returns the packages written."""
+    from reneus_mi.batch.batch_folder import BatchFolder
+    batch = BatchFolder(runs_dir)
+    specimens = _read(batch.collection)
+    if specimens is None:
+        raise ReneusError(f'{runs_dir}: not a run folder (no result.json) nor a batch folder (no '
+                          f'{os.path.relpath(batch.collection, runs_dir)}); expected one of them')
+    out = guards.check_output_dir(out, inputs=[runs_dir], what='packages folder')
+    given = {k: v for k, v in options.pop('identifiers', {}).items() if v}
+    written = []
+    for s in specimens:
+        run = batch.run(s['name'])
+        if run.state().name != 'finished':
+            continue
+        identifiers = {**s.get('identifiers', {}), **given}
+        name = _file_name(identifiers.get('catalogNumber') or s['name'])
+        export_run(run.path, os.path.join(out, name), identifiers=identifiers, **options)
+        written.append(os.path.join(out, name))
+    return written
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog='python -m reneus_mi.export', description=__doc__.split('\n\n')[0])
+    parser.add_argument('run', metavar='RUN', help='a finished run folder, or a batch folder (every finished '
+                        'specimen)')
+    parser.add_argument('-o', '--output', required=True, metavar='PACKAGE', help='the package folder to write '
+                        '(new or empty); for a batch folder, one package per specimen inside it')
+    parser.add_argument('--zip', action='store_true', help='also write PACKAGE.zip')
+    parser.add_argument('--watertight', action='store_true', help='add a variant of the mesh with its holes '
+                        'closed (metadata.json says how many)')
+    parser.add_argument('--creator', help="who made the model (Audubon Core's dc:creator)")
+    for term in IDENTIFIERS:
+        parser.add_argument('--' + term, dest=term, metavar='TEXT', help=f"Darwin Core's {term} (for a batch: "
+                            'over the manifest column of that name)')
+    args = parser.parse_args(argv)
+    identifiers = {term: getattr(args, term) for term in IDENTIFIERS}
+    with exit_on_error(RuntimeError):
+        if os.path.isfile(RunFolder(args.run).result) or not os.path.isdir(args.run):
+            export_run(args.run, args.output, identifiers=identifiers, creator=args.creator,
+                       watertight=args.watertight)
+            packages = [args.output]
+        else:
+            packages = export_batch(args.run, args.output, identifiers=identifiers, creator=args.creator,
+                                    watertight=args.watertight)
+        if args.zip:
+            archive = shutil.make_archive(os.path.abspath(args.output), 'zip', args.output)
+            packages.append(archive)
+    print(f"wrote {', '.join(packages) or 'nothing (no finished specimen)'}")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,95 @@
+"""A specimen's package (``python -m reneus_mi.export``): the mesh as the run wrote it, the
+identifiers and paradata a collection imports, and refusals."""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import zipfile
+
+import numpy as np
+import pytest
+import trimesh
+
+from reneus_mi import export, optimize
+from reneus_mi.utils.errors import ReneusError
+
+IDS = {'catalogNumber': 'NHM 2026/17', 'occurrenceID': 'urn:catalog:NHM:ENT:2026-17', 'institutionCode': 'NHM'}
+
+
+@pytest.fixture(scope='module')
+def finished(scene_xml, tmp_path_factory):
+    """A short run of the tiny statuette that ends with its mesh."""
+    run = tmp_path_factory.mktemp('export') / 'run'
+    assert optimize.main([scene_xml, '-o', str(run), '--iterations', '30', '--batch-rays', '256',
+                          '--validate-every', '0', '--mesh-resolution', '32', '--quiet']) == 0
+    with open(run / 'result.json') as f:
+        assert 'failure' not in json.load(f)
+    return run
+
+
+def test_package_of_a_run(finished, tmp_path):
+    out = tmp_path / 'package'
+    metadata = export.export_run(str(finished), str(out), identifiers=IDS, creator='A. Curator')
+    name = 'NHM_2026_17'
+    assert sorted(os.listdir(out)) == sorted([f'{name}.ply', f'{name}.glb', 'metadata.json', 'record.csv'])
+    # The mesh as the run wrote it, vertex for vertex, with its colours.
+    mine, theirs = trimesh.load(out / f'{name}.ply', process=False), trimesh.load(finished / 'mesh.ply', process=False)
+    np.testing.assert_allclose(mine.vertices, theirs.vertices)
+    assert np.array_equal(mine.visual.vertex_colors, theirs.visual.vertex_colors)
+    web = trimesh.load(out / f'{name}.glb', force='mesh', process=False)
+    assert len(web.vertices) == len(theirs.vertices)
+    with open(out / 'metadata.json') as f:
+        assert json.load(f) == json.loads(json.dumps(metadata, default=float))
+    assert metadata['dwc'] == IDS and metadata['ac']['dc:creator'] == 'A. Curator'
+    assert metadata['ac']['dcterms:format'] == 'model/gltf-binary'
+    np.testing.assert_allclose(metadata['mesh']['extent'], theirs.extents, atol=1e-4)
+    with open(finished / 'config.json') as f:
+        assert metadata['paradata']['configuration'] == json.load(f)
+    training = metadata['paradata']['training']
+    assert training['iterations'] == 30 and training['psnr'] > 0
+    assert metadata['paradata']['container']['ior_given'] == pytest.approx(1.45)
+    assert metadata['paradata']['software']['version']
+    with open(out / 'record.csv', newline='') as f:
+        (row,) = list(csv.DictReader(f))
+    assert {k: row[k] for k in IDS} == IDS and row['file'] == f'{name}.glb' and row['steps'] == '30'
+    assert float(row['extent_x']) == pytest.approx(theirs.extents[0], abs=1e-3)
+
+
+def test_watertight_variant_says_what_it_closed(tmp_path):
+    box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
+    box.update_faces(np.arange(len(box.faces)) != 0)     # one triangle missing: one hole
+    box.remove_unreferenced_vertices()
+    assert export._boundary_loops(box) == 1 and not box.is_watertight
+    closed = export._watertight(box)
+    assert closed['holes_closed'] == 1 and closed['holes_left'] == 0 and closed['watertight']
+    assert closed['mesh'].is_watertight
+
+
+def test_command_line_zip_and_batch_identifiers(finished, tmp_path):
+    """A batch folder: each finished specimen's package carries its manifest row's identifiers
+    (the command line's win)."""
+    runs = tmp_path / 'runs'
+    shutil.copytree(finished, runs / 'beetle')
+    (runs / '_batch').mkdir()
+    (runs / '_batch' / 'collection.json').write_text(json.dumps([
+        {'name': 'beetle', 'data': str(finished), 'identifiers': dict(IDS, catalogNumber='B-1')},
+        {'name': 'fly', 'data': str(finished), 'identifiers': {'catalogNumber': 'F-2'}}]))
+    out = tmp_path / 'packages'
+    assert export.main([str(runs), '-o', str(out), '--institutionCode', 'OUM', '--zip']) == 0
+    assert os.listdir(out) == ['B-1']      # the fly never ran
+    with open(out / 'B-1' / 'metadata.json') as f:
+        assert json.load(f)['dwc'] == dict(IDS, catalogNumber='B-1', institutionCode='OUM')
+    with zipfile.ZipFile(str(out) + '.zip') as z:
+        assert 'B-1/B-1.ply' in z.namelist()
+
+
+def test_unfinished_run_refused(finished, tmp_path):
+    run = tmp_path / 'run'
+    shutil.copytree(finished, run)
+    (run / 'result.json').unlink()
+    with pytest.raises(ReneusError, match='not a finished run'):
+        export.export_run(str(run), str(tmp_path / 'package'))
+    with pytest.raises(ReneusError, match='package folder .* lies inside the input'):
+        export.export_run(str(finished), str(finished / 'package'))
