@@ -3,7 +3,8 @@
 #
 #   bash setup.sh [options]       install, then reconstruct the embedded demo (options go to
 #                                 python -m reneus_mi.optimize, e.g. --iterations 100)
-#   bash setup.sh test [options]  install, then run the test suite (options go to pytest)
+#   bash setup.sh test [options]  install (and Chromium, for the report page's test), then run
+#                                 the test suite (options go to pytest)
 #
 # Dr.Jit's CPU backend needs libLLVM >= 16 (Debian 12 ships 14/15, with which
 # every kernel aborts with "LLVM ERROR: Cannot select ... fminimum").
@@ -24,6 +25,13 @@ python3 -m pip install -q --disable-pip-version-check -e '.[test]'
 mode=demo
 case "${1:-}" in demo|test) mode=$1; shift ;; esac
 if [ "$mode" = test ]; then
+  # The report page is tested in a real browser (tests/commands/test_export.py).
+  if ! command -v chromium >/dev/null 2>&1; then
+    sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo"
+    echo "installing chromium (the report page's browser test)"
+    $sudo apt-get update -qq
+    $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+  fi
   exec python3 -m pytest -q "$@"
 fi
 exec python3 -m reneus_mi.optimize --demo "$@"

@@ -15,6 +15,8 @@
                 dataset/            the dataset captured from its photographs (a capture)
                 preview.png         a render of its mesh
                 metrics.json        Chamfer to the ground truth, where there is one
+                package/            its package for the collection, with its report page
+                                    (reneus_mi.export.package), once its run finished
                 attempts.jsonl      one line per attempt: when, how long, how it ended
                 worker.log          the local worker's output
 
@@ -28,6 +30,7 @@ import os
 from dataclasses import dataclass
 
 from reneus_mi.train.run_folder import FolderFile, RunFolder, RunLock
+from reneus_mi.utils.io import read_json
 
 #: The batch's own folder inside RUNS_DIR (no specimen name starts with an underscore).
 WORK = '_batch'
@@ -46,11 +49,19 @@ class SpecimenFiles:
     dataset = FolderFile('dataset')
     preview = FolderFile('preview.png')
     metrics = FolderFile('metrics.json')
+    package = FolderFile('package')
     attempts = FolderFile('attempts.jsonl')
     worker_log = FolderFile('worker.log')
 
+    def page(self) -> str | None:
+        """The report page of its package, None while it has none."""
+        if not os.path.isdir(self.package):
+            return None
+        pages = [n for n in os.listdir(self.package) if n.endswith('.html')]
+        return os.path.join(self.package, pages[0]) if pages else None
+
     def read_metrics(self) -> dict:
-        return _read_json(self.metrics) or {}
+        return read_json(self.metrics) or {}
 
     def add_attempt(self, record: dict) -> None:
         """Append one attempt (a line: whole lines survive a kill, a torn last one is skipped)."""
@@ -96,9 +107,3 @@ class BatchFolder:
         return SpecimenFiles(os.path.join(self.work, name))
 
 
-def _read_json(path: str) -> dict | None:
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return None

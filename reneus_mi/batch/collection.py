@@ -17,7 +17,7 @@ column              what
 ``preset``          the preset the run starts from (default: ``--preset``)
 ``ior``             the container's IOR, over the dataset's (a capture's setting)
 ``catalogNumber``   Darwin Core identifiers (also ``occurrenceID``, ``institutionCode``)
-                    that the specimen's exported package carries (:mod:`reneus_mi.export`)
+                    that the specimen's exported package carries (:mod:`reneus_mi.export.package`)
 ``size_mm`` ...     a capture setting (:class:`~reneus_mi.capture.settings.CaptureSettings`:
                     the container's size, the board), over ``capture.json``
 ``train.iterations`` any setting by its dotted path, as ``--set`` takes it
@@ -43,7 +43,7 @@ from reneus_mi.batch.batch_folder import RESERVED
 from reneus_mi.capture.settings import CAPTURE_FILE
 from reneus_mi.capture.settings import CaptureSettings
 from reneus_mi.config import with_settings
-from reneus_mi.export import IDENTIFIERS
+from reneus_mi.export.package import IDENTIFIERS
 from reneus_mi.presets import preset
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError

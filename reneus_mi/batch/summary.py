@@ -18,6 +18,7 @@ rotation,      rotation (the integrator's parameters), per-axis scale
 scale
 light          the refined light (its mean colour)
 mesh, preview  the mesh file and the rendered preview, relative to RUNS_DIR
+page           the report page of its package (reneus_mi.export), relative to RUNS_DIR
 =============  ==================================================================
 """
 from __future__ import annotations
@@ -33,7 +34,7 @@ from reneus_mi.train.run_folder import recent_psnr
 from reneus_mi.utils.io import atomic_write_text
 
 COLUMNS = ('name', 'state', 'reason', 'wall_s', 'iterations', 'psnr', 'chamfer', 'ior', 'translation',
-           'rotation', 'scale', 'light', 'mesh', 'container', 'preview', 'data')
+           'rotation', 'scale', 'light', 'mesh', 'container', 'preview', 'page', 'data')
 #: Result keys of the refined quantities, by column.
 _REFINED = {'ior': 'container.eta', 'translation': 'container.translation', 'rotation': 'container.rotation',
             'scale': 'container.scale', 'light': 'light.mean'}
@@ -59,6 +60,8 @@ def row(batch, specimen) -> dict:
         out[column] = _numbers(refined.get(key))
     for column, path in (('mesh', folder.mesh), ('container', folder.container), ('preview', files.preview)):
         out[column] = os.path.relpath(path, batch.path) if _nonempty(path) else None
+    page = files.page()
+    out['page'] = os.path.relpath(page, batch.path) if page else None
     return out
 
 
@@ -126,10 +129,13 @@ def _html(rows: list[dict]) -> str:
     for r in rows:
         preview = (f'<img src="{e(r["preview"])}" width="120" height="120" alt="{e(r["name"])}">'
                    if r['preview'] else '<span class="none">no mesh</span>')
+        if r['page']:    # the thumbnail opens the specimen's report page
+            preview = f'<a href="{e(r["page"])}">{preview}</a>'
+        name = f'<a href="{e(r["page"])}">{e(r["name"])}</a>' if r['page'] else e(r['name'])
         state = e(r['state']) + (f'<div class="reason">{e(r["reason"])}</div>' if r['reason'] else '')
         refined = '<br>'.join(f'{e(c)} {e(r[c])}' for c in _REFINED if r[c])
-        links = ' '.join(f'<a href="{e(r[c])}">{c}</a>' for c in ('mesh', 'container') if r[c])
-        cells = [preview, e(r['name']), state, _cell(r['wall_s'], 's'), _cell(r['iterations']),
+        links = ' '.join(f'<a href="{e(r[c])}">{c}</a>' for c in ('page', 'mesh', 'container') if r[c])
+        cells = [preview, name, state, _cell(r['wall_s'], 's'), _cell(r['iterations']),
                  _cell(r['psnr'], 'dB'), _cell(r['chamfer']), refined, links]
         body.append(f'<tr style="background:{_STATE_COLOURS.get(r["state"], "#fff")}">'
                     + ''.join(f'<td>{c}</td>' for c in cells) + '</tr>')

@@ -81,6 +81,7 @@ def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
     for stale in (files.preview, files.metrics):   # they describe the mesh this attempt replaces
         if os.path.isfile(stale):
             os.unlink(stale)
+    shutil.rmtree(files.package, ignore_errors=True)
     try:
         run = prepare(specimen, files, folder)
         result = run.train(progress=False)
@@ -94,6 +95,7 @@ def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
     if 'failure' in result:
         return 'failed', result['failure']
     measure(run.dataset, result['mesh'], files)
+    publish(specimen, folder, files)
     return 'finished', ''
 
 
@@ -141,6 +143,18 @@ def measure(ds, mesh_path: str, files) -> dict:
                        up=-c2w[:3, 1])
     atomic_write_text(files.metrics, json.dumps(metrics, indent=2))
     return metrics
+
+
+def publish(specimen, folder, files) -> None:
+    """The finished specimen's package with its report page (:mod:`reneus_mi.export.package`),
+    which the summary links. A package that cannot be made is said in the worker's log; the
+    run stands."""
+    # Imported here, after run_task set the task's variant (see there).
+    from reneus_mi.export.package import export_run
+    try:
+        export_run(folder.path, files.package, identifiers=specimen.identifiers)
+    except (ReneusError, RuntimeError, OSError) as e:
+        print(f'warning: {specimen.name}: no package ({one_line(str(e))})', flush=True)
 
 
 def record_death(folder, files, reason: str, seconds: float | None, engine: str) -> bool:

@@ -12,6 +12,7 @@ import os
 import mitsuba as mi
 import numpy as np
 
+from reneus_mi.data.scene_xml import sensor_dict
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_path
@@ -44,17 +45,34 @@ def render_preview(mesh_path: str, out: str, *, direction=(1.0, -1.0, 0.8), up=(
         raise ReneusError(f'preview of {mesh_path}: up={tuple(up)} lies along the view direction')
     distance = radius / np.sin(np.radians(FOV / 2)) * MARGIN
     eye = centre + d * distance
-    key = d + np.cross(up, d) / np.linalg.norm(np.cross(up, d)) * 0.6 + up / np.linalg.norm(up) * 0.8
+    sensor = {'type': 'perspective', 'fov': FOV, 'fov_axis': 'y',
+              'near_clip': max(1e-4, 1e-3 * distance), 'far_clip': 10.0 * distance,
+              'to_world': mi.ScalarTransform4f().look_at(origin=eye.tolist(), target=centre.tolist(),
+                                                         up=up.tolist()),
+              'film': {'type': 'hdrfilm', 'width': size, 'height': size}}
+    return _render(mesh_path, out, sensor, d, up, spp)
+
+
+def render_view(mesh_path: str, out: str, K: np.ndarray, c2w: np.ndarray, size: tuple[int, int],
+                spp: int = 16) -> str:
+    """Render ``mesh_path`` to the PNG ``out`` as a dataset's camera (``K``, ``c2w`` with
+    OpenCV axes, an image of ``size``) sees it: the model beside the photograph of that view."""
+    sensor = sensor_dict(np.asarray(K, float), np.asarray(c2w, float), *map(int, size))
+    return _render(mesh_path, out, sensor, np.asarray(c2w[:3, 2], float) * -1.0,
+                   np.asarray(c2w[:3, 1], float) * -1.0, spp)
+
+
+def _render(mesh_path: str, out: str, sensor: dict, d: np.ndarray, up: np.ndarray, spp: int) -> str:
+    """The clay mesh seen by ``sensor`` (looking along ``-d``, ``up`` upwards), lit from over
+    the viewer's shoulder, to the PNG ``out``."""
+    d, up = d / np.linalg.norm(d), up / np.linalg.norm(up)
+    key = d + np.cross(up, d) / np.linalg.norm(np.cross(up, d)) * 0.6 + up * 0.8
+    sensor = {**sensor, 'sampler': {'type': 'independent', 'sample_count': spp},
+              'film': {**sensor['film'], 'pixel_format': 'rgb', 'rfilter': {'type': 'gaussian'}}}
     scene = mi.load_dict({
         'type': 'scene',
         'integrator': {'type': 'direct'},
-        'sensor': {'type': 'perspective', 'fov': FOV, 'fov_axis': 'y',
-                   'near_clip': max(1e-4, 1e-3 * distance), 'far_clip': 10.0 * distance,
-                   'to_world': mi.ScalarTransform4f().look_at(origin=eye.tolist(), target=centre.tolist(),
-                                                              up=up.tolist()),
-                   'sampler': {'type': 'independent', 'sample_count': spp},
-                   'film': {'type': 'hdrfilm', 'width': size, 'height': size, 'pixel_format': 'rgb',
-                            'rfilter': {'type': 'gaussian'}}},
+        'sensor': sensor,
         'mesh': {'type': 'ply' if mesh_path.lower().endswith('.ply') else 'obj', 'filename': mesh_path,
                  'face_normals': True,
                  'bsdf': {'type': 'twosided', 'bsdf': {'type': 'diffuse',

@@ -182,3 +182,13 @@ def check_npz_file(path: str | os.PathLike, what: str = 'checkpoint', keys=('met
     if absent:
         raise ReneusError(f"{path}: not a reneus-mi {what} (no {', '.join(absent)}); "
                           'expected a file written by reneus-mi')
+
+
+def read_json(path: str | os.PathLike):
+    """The JSON value in ``path``, None where the file is missing or unreadable (what a report
+    reads from folders that may hold it)."""
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None

@@ -92,7 +92,10 @@ def test_the_broken_specimen_fails_alone(engine, collection, tmp_path, umask_022
         # The dataset has a ground truth: a Chamfer distance, the same as one computed here.
         assert float(r['chamfer']) == pytest.approx(_chamfer(runs / name / 'mesh.ply', collection / name), abs=1e-4)
         assert (runs / r['preview']).is_file() and r['mesh'] == f'{name}/mesh.ply'
-    assert rows['b']['state'] == 'failed' and BROKEN in rows['b']['reason']
+        # Its package's report page, which summary.html links from the thumbnail.
+        assert r['page'] == f'_batch/{name}/package/{name}.html' and (runs / r['page']).is_file()
+        assert f'<a href="{r["page"]}"><img src="{r["preview"]}"' in (runs / 'summary.html').read_text()
+    assert rows['b']['state'] == 'failed' and BROKEN in rows['b']['reason'] and not rows['b']['page']
     assert 'a/mesh.ply' in (runs / 'summary.html').read_text()
     modes = {os.path.relpath(os.path.join(d, f), runs): os.stat(os.path.join(d, f)).st_mode & 0o777
              for d, _, files in os.walk(runs) for f in files}

@@ -10,7 +10,7 @@ COMMANDS = {'optimize': 'reneus_mi.optimize', 'render': 'reneus_mi.render.__main
             'extract': 'reneus_mi.extract', 'evaluate': 'reneus_mi.evaluate', 'scene': 'reneus_mi.scene',
             'synth': 'reneus_mi.synth', 'capture': 'reneus_mi.capture.__main__',
             'batch': 'reneus_mi.batch.__main__', 'board': 'reneus_mi.board', 'colmap': 'reneus_mi.colmap',
-            'simulate': 'reneus_mi.simulate'}
+            'simulate': 'reneus_mi.simulate', 'export': 'reneus_mi.export.__main__'}
 #: The package's top level: the commands that are modules, and the configuration.
 TOP_LEVEL = {'optimize', 'extract', 'evaluate', 'scene', 'synth', 'board', 'colmap', 'simulate', 'config',
              'presets'}

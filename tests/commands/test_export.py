@@ -5,14 +5,18 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import shutil
+import subprocess
 import zipfile
 
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 
-from reneus_mi import export, optimize
+from reneus_mi import optimize
+from reneus_mi.export import __main__ as export_command, package as export
 from reneus_mi.utils.errors import ReneusError
 
 IDS = {'catalogNumber': 'NHM 2026/17', 'occurrenceID': 'urn:catalog:NHM:ENT:2026-17', 'institutionCode': 'NHM'}
@@ -33,7 +37,8 @@ def test_package_of_a_run(finished, tmp_path):
     out = tmp_path / 'package'
     metadata = export.export_run(str(finished), str(out), identifiers=IDS, creator='A. Curator')
     name = 'NHM_2026_17'
-    assert sorted(os.listdir(out)) == sorted([f'{name}.ply', f'{name}.glb', 'metadata.json', 'record.csv'])
+    assert sorted(os.listdir(out)) == sorted([f'{name}.ply', f'{name}.glb', f'{name}.html', 'metadata.json',
+                                              'record.csv'])
     # The mesh as the run wrote it, vertex for vertex, with its colours.
     mine, theirs = trimesh.load(out / f'{name}.ply', process=False), trimesh.load(finished / 'mesh.ply', process=False)
     np.testing.assert_allclose(mine.vertices, theirs.vertices)
@@ -77,7 +82,7 @@ def test_command_line_zip_and_batch_identifiers(finished, tmp_path):
         {'name': 'beetle', 'data': str(finished), 'identifiers': dict(IDS, catalogNumber='B-1')},
         {'name': 'fly', 'data': str(finished), 'identifiers': {'catalogNumber': 'F-2'}}]))
     out = tmp_path / 'packages'
-    assert export.main([str(runs), '-o', str(out), '--institutionCode', 'OUM', '--zip']) == 0
+    assert export_command.main([str(runs), '-o', str(out), '--institutionCode', 'OUM', '--zip']) == 0
     assert os.listdir(out) == ['B-1']      # the fly never ran
     with open(out / 'B-1' / 'metadata.json') as f:
         assert json.load(f)['dwc'] == dict(IDS, catalogNumber='B-1', institutionCode='OUM')
@@ -93,3 +98,34 @@ def test_unfinished_run_refused(finished, tmp_path):
         export.export_run(str(run), str(tmp_path / 'package'))
     with pytest.raises(ReneusError, match='package folder .* lies inside the input'):
         export.export_run(str(finished), str(finished / 'package'))
+
+
+def _chromium(*args) -> subprocess.CompletedProcess:
+    """Headless Chromium (Debian's package; ``bash setup.sh test`` installs it), WebGL in software."""
+    browser = shutil.which('chromium') or shutil.which('chromium-browser')
+    assert browser, 'no chromium: bash setup.sh test installs it (apt-get install -y chromium)'
+    return subprocess.run([browser, '--headless', '--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader',
+                           '--virtual-time-budget=20000', *args], capture_output=True, text=True, timeout=180)
+
+
+def test_report_page_in_a_real_browser(finished, tmp_path):
+    """The page opens from disk with no network: the viewer shows the model (the middle of the
+    viewer is not its background) and no error reached the console."""
+    out = tmp_path / 'package'
+    export.export_run(str(finished), str(out), identifiers={'catalogNumber': 'B-1'})
+    page = out / 'B-1.html'
+    text = page.read_text()
+    # Nothing the page loads lies elsewhere: the component and the model are in it.
+    assert not re.search(r'(src|href)="(https?:)?//', text) and '<model-viewer id="model"' in text
+    dom = _chromium('--dump-dom', page.as_uri()).stdout
+    body = re.search(r'<body[^>]*>', dom).group(0)
+    assert 'data-state="loaded"' in body and 'data-errors=""' in body, body
+    shot = tmp_path / 'shot.png'
+    _chromium('--window-size=1000,700', f'--screenshot={shot}', page.as_uri())
+    image = np.asarray(Image.open(shot).convert('RGB'), float)
+    viewer = np.array([0x2b, 0x2f, 0x36], float)
+    # The viewer spans the page's width below the title; its middle shows the model.
+    middle = image[330:370, 480:520].reshape(-1, 3)
+    assert np.abs(middle - viewer).max(axis=1).mean() > 40, middle.mean(axis=0)
+    corner = image[560:570, 60:70].reshape(-1, 3)        # the viewer's own background beside it
+    assert np.abs(corner - viewer).max() < 12, corner.mean(axis=0)

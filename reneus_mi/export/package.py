@@ -1,11 +1,14 @@
-"""``python -m reneus_mi.export RUN -o PACKAGE``: a finished run as a specimen's package for a
-collection's systems (MorphoSource, a museum's collection database, a web viewer).
+"""A finished run as a specimen's package for a collection's systems (MorphoSource, a
+museum's collection database, a web viewer): what ``python -m reneus_mi.export RUN -o
+PACKAGE`` writes (:mod:`reneus_mi.export.__main__`).
 
 Layout of ``PACKAGE`` (``--zip``: also ``PACKAGE.zip``)::
 
     NAME.ply              the mesh with vertex colours, in the run's units (a capture's:
                           millimetres in the board's frame)
     NAME.glb              the same for web viewers (glTF: metres, y up)
+    NAME.html             the report page: the model to turn, with a scale bar, renders,
+                          photographs, overlays, figures; self-contained (:mod:`reneus_mi.page`)
     NAME_watertight.ply   (--watertight) the mesh with its holes closed; metadata.json says
                           how many were closed and whether it is watertight
     metadata.json         the identifiers (Darwin Core), the media terms (Audubon Core) and the
@@ -20,7 +23,6 @@ exported into ``PACKAGE/NAME``), from the manifest's columns of the same names.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import datetime
 import io
@@ -28,18 +30,19 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 
 import numpy as np
 import trimesh
 
 import reneus_mi
+from reneus_mi.data import load_dataset
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.geometry.surface import components
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.utils import guards
-from reneus_mi.utils.errors import ReneusError, exit_on_error
-from reneus_mi.utils.io import atomic_export, atomic_write_text
+from reneus_mi.utils.errors import ReneusError
+from reneus_mi.export.page import write_page
+from reneus_mi.utils.io import atomic_export, atomic_write_text, read_json
 
 #: Darwin Core identifiers a package carries (command-line options and manifest columns).
 IDENTIFIERS = ('catalogNumber', 'occurrenceID', 'institutionCode')
@@ -47,6 +50,8 @@ IDENTIFIERS = ('catalogNumber', 'occurrenceID', 'institutionCode')
 CREATION_TECHNIQUE = ('3D surface reconstructed from photographs taken through the transparent container '
                       'that holds the specimen (ReNeuS, CVPR 2023: refraction and reflection at the '
                       "container's surfaces traced, a neural signed distance field fitted inside), with reneus-mi")
+#: Largest side of the photographs read for the report page.
+PICTURE_SOURCE = 480
 #: The columns of record.csv, in order.
 RECORD_COLUMNS = (*IDENTIFIERS, 'creator', 'created', 'file', 'format', 'units', 'extent_x', 'extent_y',
                   'extent_z', 'pieces', 'container', 'container_size_mm', 'ior_given', 'ior_refined', 'psnr',
@@ -103,7 +108,19 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
     }
     atomic_write_text(os.path.join(out, 'metadata.json'), json.dumps(metadata, indent=2, default=float))
     atomic_write_text(os.path.join(out, 'record.csv'), _record(metadata, name))
+    write_page(os.path.join(out, f'{name}.html'), metadata, os.path.join(out, f'{name}.ply'),
+               os.path.join(out, files['web_mesh']) if 'web_mesh' in files else None, _dataset(config.get('data')))
     return metadata
+
+
+def _dataset(data: str | None):
+    """The run's dataset, for the page's cameras and photographs (None where it is gone)."""
+    if not data or not os.path.isdir(data):
+        return None
+    try:
+        return load_dataset(data, max_size=PICTURE_SOURCE)
+    except ReneusError:
+        return None
 
 
 def _file_name(text: str) -> str:
@@ -153,21 +170,13 @@ def _boundary_loops(mesh: trimesh.Trimesh) -> int:
     return len(trimesh.graph.connected_components(edges, min_len=1)) if len(edges) else 0
 
 
-def _read(path: str) -> dict | None:
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return None
-
-
 def _capture(data: str | None) -> dict | None:
     """What the capture command recorded about the photographs (None: not a capture)."""
-    report = _read(os.path.join(data, 'report.json')) if data else None
+    report = read_json(os.path.join(data, 'report.json')) if data else None
     if report is None:
         return None
     camera = report['camera']
-    transforms = _read(os.path.join(data, 'transforms.json')) or {}
+    transforms = read_json(os.path.join(data, 'transforms.json')) or {}
     return {'camera': camera.get('exif', {}), 'photographs': len(report['views']),
             'left_out': report.get('left_out', {}), 'photo_size': camera['photo_size'],
             'intrinsics_px': camera['K_photo'], 'intrinsics_std_px': camera.get('K_photo_std_px'),
@@ -179,10 +188,10 @@ def _capture(data: str | None) -> dict | None:
 
 def _container(data: str | None, result: dict) -> dict | None:
     """The container as the dataset gave it and as the run refined it."""
-    meta = _read(os.path.join(data, 'transforms.json')) if data else None
+    meta = read_json(os.path.join(data, 'transforms.json')) if data else None
     if meta is None:
         return None
-    report = _read(os.path.join(data, 'report.json')) or {}
+    report = read_json(os.path.join(data, 'report.json')) or {}
     given = report.get('container', {})
     refined = result.get('refined') or {}
     return {'shape': given.get('shape'), 'size_mm': given.get('size_mm'), 'wall_mm': given.get('wall_mm'),
@@ -226,7 +235,7 @@ def export_batch(runs_dir: str, out: str, **options) -> list[str]:
     manifest row gave; returns the packages written."""
     from reneus_mi.batch.batch_folder import BatchFolder
     batch = BatchFolder(runs_dir)
-    specimens = _read(batch.collection)
+    specimens = read_json(batch.collection)
     if specimens is None:
         raise ReneusError(f'{runs_dir}: not a run folder (no result.json) nor a batch folder (no '
                           f'{os.path.relpath(batch.collection, runs_dir)}); expected one of them')
@@ -242,37 +251,3 @@ def export_batch(runs_dir: str, out: str, **options) -> list[str]:
         export_run(run.path, os.path.join(out, name), identifiers=identifiers, **options)
         written.append(os.path.join(out, name))
     return written
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog='python -m reneus_mi.export', description=__doc__.split('\n\n')[0])
-    parser.add_argument('run', metavar='RUN', help='a finished run folder, or a batch folder (every finished '
-                        'specimen)')
-    parser.add_argument('-o', '--output', required=True, metavar='PACKAGE', help='the package folder to write '
-                        '(new or empty); for a batch folder, one package per specimen inside it')
-    parser.add_argument('--zip', action='store_true', help='also write PACKAGE.zip')
-    parser.add_argument('--watertight', action='store_true', help='add a variant of the mesh with its holes '
-                        'closed (metadata.json says how many)')
-    parser.add_argument('--creator', help="who made the model (Audubon Core's dc:creator)")
-    for term in IDENTIFIERS:
-        parser.add_argument('--' + term, dest=term, metavar='TEXT', help=f"Darwin Core's {term} (for a batch: "
-                            'over the manifest column of that name)')
-    args = parser.parse_args(argv)
-    identifiers = {term: getattr(args, term) for term in IDENTIFIERS}
-    with exit_on_error(RuntimeError):
-        if os.path.isfile(RunFolder(args.run).result) or not os.path.isdir(args.run):
-            export_run(args.run, args.output, identifiers=identifiers, creator=args.creator,
-                       watertight=args.watertight)
-            packages = [args.output]
-        else:
-            packages = export_batch(args.run, args.output, identifiers=identifiers, creator=args.creator,
-                                    watertight=args.watertight)
-        if args.zip:
-            archive = shutil.make_archive(os.path.abspath(args.output), 'zip', args.output)
-            packages.append(archive)
-    print(f"wrote {', '.join(packages) or 'nothing (no finished specimen)'}")
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())

@@ -1,0 +1,47 @@
+"""``python -m reneus_mi.export RUN -o PACKAGE``: a finished run (or every finished specimen of a
+batch folder) as a specimen's package: the mesh, metadata.json, record.csv and the report
+page (:mod:`~reneus_mi.export.package`, :mod:`~reneus_mi.export.page`)."""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+
+from reneus_mi.export.package import IDENTIFIERS, export_batch, export_run
+from reneus_mi.train.run_folder import RunFolder
+from reneus_mi.utils.errors import exit_on_error
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog='python -m reneus_mi.export', description=__doc__.split('\n\n')[0])
+    parser.add_argument('run', metavar='RUN', help='a finished run folder, or a batch folder (every finished '
+                        'specimen)')
+    parser.add_argument('-o', '--output', required=True, metavar='PACKAGE', help='the package folder to write '
+                        '(new or empty); for a batch folder, one package per specimen inside it')
+    parser.add_argument('--zip', action='store_true', help='also write PACKAGE.zip')
+    parser.add_argument('--watertight', action='store_true', help='add a variant of the mesh with its holes '
+                        'closed (metadata.json says how many)')
+    parser.add_argument('--creator', help="who made the model (Audubon Core's dc:creator)")
+    for term in IDENTIFIERS:
+        parser.add_argument('--' + term, dest=term, metavar='TEXT', help=f"Darwin Core's {term} (for a batch: "
+                            'over the manifest column of that name)')
+    args = parser.parse_args(argv)
+    identifiers = {term: getattr(args, term) for term in IDENTIFIERS}
+    with exit_on_error(RuntimeError):
+        if os.path.isfile(RunFolder(args.run).result) or not os.path.isdir(args.run):
+            export_run(args.run, args.output, identifiers=identifiers, creator=args.creator,
+                       watertight=args.watertight)
+            packages = [args.output]
+        else:
+            packages = export_batch(args.run, args.output, identifiers=identifiers, creator=args.creator,
+                                    watertight=args.watertight)
+        if args.zip:
+            archive = shutil.make_archive(os.path.abspath(args.output), 'zip', args.output)
+            packages.append(archive)
+    print(f"wrote {', '.join(packages) or 'nothing (no finished specimen)'}")
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
