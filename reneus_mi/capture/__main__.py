@@ -40,6 +40,9 @@ def main(argv=None) -> int:
     parser.add_argument('-o', '--output', required=True, metavar='DATASET_DIR', help='dataset folder to write (new or empty)')
     parser.add_argument('--settings', metavar='FILE', help=f'capture settings file (default: PHOTOS_DIR/{settings_mod.CAPTURE_FILE} if present)')
     parser.add_argument('--quiet', action='store_true', help='print no table')
+    parser.add_argument('--crop-to-coverage', action='store_true',
+                        help="crop the dataset's images to the part of the frame the board covered, where the "
+                             'lens model is measured, not extrapolated (report.json: camera.coverage)')
     settings_mod.add_arguments(parser)
     args = parser.parse_args(argv)
     interrupt.leaving(lambda: _left(args.output))
@@ -49,7 +52,7 @@ def main(argv=None) -> int:
             warnings.showwarning = _one_line
             photos.check_folder(args.photos)
             s = settings_mod.resolve(args, args.photos, args.settings)
-            report = run(s, args.photos, args.output)
+            report = run(s, args.photos, args.output, crop=args.crop_to_coverage)
     if not args.quiet:
         print(export.table(report))
     print(f"wrote {args.output}: {len(report['views'])} views, container at x={report['container']['pose'][0]:.2f} mm, "

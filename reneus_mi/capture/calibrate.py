@@ -213,6 +213,9 @@ class Coverage:
     extrapolated_px: float
     #: Where that is (pixels).
     worst: tuple[float, float]
+    #: The dataset's images cropped to the covered area (--crop-to-coverage): x, y, width,
+    #: height of the crop in the uncropped dataset image, pixels; None: not cropped.
+    crop: tuple[int, int, int, int] | None = None
 
 
 #: Frame points sampled per side for :func:`coverage`.
@@ -262,3 +265,39 @@ def _nearest_on_polygon(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     candidates = a[None] + t[..., None] * ab[None]
     best = np.argmin(np.linalg.norm(candidates - points[:, None], axis=-1), axis=1)
     return candidates[np.arange(len(points)), best]
+
+
+def crop_to_coverage(cal: Calibration, cover: Coverage, K_out: np.ndarray, size: tuple[int, int]):
+    """The largest rectangle of the dataset image's shape, about the covered area's centre,
+    every pixel of which the board's corners covered (through the lens, in the photograph):
+    ``(size, K, crop)`` of the cropped pinhole camera (``crop``: x, y, width, height in the
+    uncropped image)."""
+    width, height = size
+    hull = cover.hull.astype(np.float32)
+    K_cv = opencv_K(cal.K)
+
+    def in_photo(px):
+        rays = np.c_[(px - K_out[:2, 2]) / K_out[0, 0], np.ones(len(px))]
+        seen, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K_cv, cal.dist)
+        return seen.reshape(-1, 2) + 0.5
+    centre = cv2.undistortPoints((hull.mean(axis=0) - 0.5).reshape(1, 1, 2).astype(np.float64), K_cv, cal.dist,
+                                 P=opencv_K(K_out)).reshape(2) + 0.5
+    edge = np.linspace(-1.0, 1.0, 17)
+    outline = np.concatenate([np.c_[edge, np.full_like(edge, s)] for s in (-1.0, 1.0)] +
+                             [np.c_[np.full_like(edge, s), edge] for s in (-1.0, 1.0)])
+
+    def fits(t):
+        px = centre + outline * (0.5 * t * width, 0.5 * t * height)
+        if (px < 0).any() or (px[:, 0] > width).any() or (px[:, 1] > height).any():
+            return False
+        return all(cv2.pointPolygonTest(hull, (float(x), float(y)), False) >= 0 for x, y in in_photo(px))
+    lo, hi = 0.0, 1.0
+    for _ in range(30):
+        lo, hi = ((lo + hi) / 2, hi) if fits((lo + hi) / 2) else (lo, (lo + hi) / 2)
+    w, h = max(1, int(lo * width)), max(1, int(lo * height))
+    x0, y0 = int(np.floor(centre[0] - w / 2)), int(np.floor(centre[1] - h / 2))
+    x0, y0 = min(max(x0, 0), width - w), min(max(y0, 0), height - h)
+    K = np.array(K_out, np.float64)
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    return (w, h), K, (x0, y0, w, h)

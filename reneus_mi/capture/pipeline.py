@@ -19,6 +19,7 @@ capture folders.
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 import warnings
@@ -31,7 +32,7 @@ from tqdm import tqdm
 from reneus_mi.capture import board as board_mod
 from reneus_mi.capture import export, photos, settings as settings_mod
 from reneus_mi.capture.board import Board
-from reneus_mi.capture.calibrate import EXTRAPOLATION_WARN_PX, Calibration, calibrate, coverage
+from reneus_mi.capture.calibrate import EXTRAPOLATION_WARN_PX, Calibration, calibrate, coverage, crop_to_coverage
 from reneus_mi.capture.exposure import measure
 from reneus_mi.capture.placement import board_mesh
 from reneus_mi.capture.register import Outline, register
@@ -138,8 +139,9 @@ def _warn_uncovered(names, valid, K, c2w, s, pose) -> None:
                           'those pixels are black in the dataset')
 
 
-def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
-    """The whole capture (see the module docstring); returns what the report holds."""
+def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: bool = False) -> dict:
+    """The whole capture (see the module docstring); returns what the report holds. ``crop``:
+    the dataset's images cropped to the part of the frame the board covered."""
     start = time.perf_counter()
     out = guards.check_output_dir(out, inputs=[photos_dir], allow=export.OUTPUTS, what='dataset folder')
     board = Board.from_settings(s)
@@ -169,12 +171,15 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str) -> dict:
     left_out.update({n: f'{r} (once the corners seen through the container were left out)'
                      for n, r in cal.dropped.items()})
     cover = coverage(board, cal)
-    if cover.extrapolated_px > EXTRAPOLATION_WARN_PX:
+    K_out = pinhole_K(cal.K, scale)
+    if crop:
+        (width, height), K_out, box = crop_to_coverage(cal, cover, K_out, (width, height))
+        cover = dataclasses.replace(cover, crop=box)
+    elif cover.extrapolated_px > EXTRAPOLATION_WARN_PX:
         warnings.warn(f'the board covered {cover.share:.0%} of the frame; beyond it the lens model is '
                       f'uncertain by up to {cover.extrapolated_px:.1f} px (at x={cover.worst[0]:.0f}, '
                       f'y={cover.worst[1]:.0f}), and so are the dataset\'s pixels there: take photographs '
-                      'with the board in the frame\'s corners too')
-    K_out = pinhole_K(cal.K, scale)
+                      'with the board in the frame\'s corners too, or crop to what it covered (--crop-to-coverage)')
     names = [v.name for v in cal.views]
     images, valid = load_views(reduced, cal, (width, height), K_out)
     c2w = np.stack([v.c2w for v in cal.views])

@@ -158,8 +158,8 @@ def _check_masks(container, K, c2w, height, width, files, given_masks, sources, 
                 "view's camera, or the pose wrong?)")
 
 
-#: A photograph this many times brighter or darker than the median one (linear radiance, the
-#: whole frame) is named: a dataset's photographs share one exposure, which the model assumes
+#: A photograph this many times brighter or darker than the median one (its mean linear
+#: radiance) is named: a dataset's photographs share one exposure, which the model assumes
 #: (a capture measures and normalises each photograph's own).
 EXPOSURE_OUTLIER = 1.5
 
@@ -168,12 +168,13 @@ def warn_exposure_outliers(images, files: list[str]) -> None:
     """Warn, naming it and the factor, of each photograph whose exposure stands out."""
     if len(images) < 3:
         return
-    level = np.array([np.median(np.asarray(image[::4, ::4], np.float32) ** GAMMA) for image in images])
+    # The mean: a median flips between a print's black and white with the framing.
+    level = np.array([np.mean(np.asarray(image[::4, ::4], np.float32) ** GAMMA) for image in images])
     typical = np.median(level)
     if not typical > 0:
         return
     for factor, path in zip(level / typical, files):
         if not 1.0 / EXPOSURE_OUTLIER <= factor <= EXPOSURE_OUTLIER:
-            warnings.warn(f'{path}: {factor:.2f}x as bright as the median photograph (linear); expected one '
-                          'exposure for all (manual exposure), or photographs that state their exposure: the '
-                          'capture command measures each from the board')
+            warnings.warn(f'{path}: {factor:.2f}x as bright as the median photograph (mean linear value); '
+                          'expected one exposure for all (manual exposure), or photographs that state their '
+                          'exposure: the capture command measures each from the board')

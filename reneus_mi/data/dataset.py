@@ -432,7 +432,8 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
         if mask is not None and mask.shape != (height, width):
             raise ReneusError(f"mask of {path}: is {mask.shape[1]}x{mask.shape[0]}, "
                              f"expected the image size {width}x{height}")
-    warn_exposure_outliers(images, files)
+    if board is None:    # a capture's photographs had their exposures measured and normalised
+        warn_exposure_outliers(images, files)
     if container is None and need_container:
         raise ReneusError(f"{meta_file}: dataset has no container mesh "
                          "(expected a 'mesh_outside' entry naming its mesh file)")
