@@ -79,10 +79,12 @@ def write_views(out: str, names: list[str], images: np.ndarray, K: np.ndarray, c
 
 
 def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.ndarray,
-          images: np.ndarray, reg, light, left_out: dict[str, str], cover: Coverage, exif: dict) -> dict:
+          images: np.ndarray, reg, light, left_out: dict[str, str], cover: Coverage, exif: dict, *,
+          given: CaptureSettings | None = None) -> dict:
     """Write the dataset into ``out`` (checked by the caller); return the report. ``left_out``:
     every photograph left out, in whichever pass, with its reason; ``exif``: the camera as the
-    photographs' EXIF states it."""
+    photographs' EXIF states it; ``given``: the settings as stated, where ``s`` has the size
+    measured in place of ``auto``."""
     n, h, w = images.shape[:3]
     placed = interfaces(s.container, s.size_mm, s.ior, s.wall_mm, s.liquid_ior, reg.pose)
     for interface, mesh in placed:
@@ -90,7 +92,7 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
     write_image(os.path.join(out, 'board.png'), board.pattern(BOARD_PX_PER_MM).astype(np.float32) / 255.0)
     report = {
         'frame': FRAME,
-        'settings': to_json(s),
+        'settings': to_json(given or s),
         'camera': {'pixel_convention': PIXEL_CONVENTION, 'exif': exif,
                    'K_photo': cal.K.tolist(), 'K_photo_opencv': opencv_K(cal.K).tolist(),
                    'K_photo_std_px': dict(zip(('f', 'cx', 'cy'), cal.K_std.tolist())),
@@ -109,7 +111,9 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
         'container': {'shape': s.container, 'size_mm': list(s.size_mm), 'wall_mm': s.wall_mm,
                       'liquid_ior': s.liquid_ior, 'pose': list(reg.pose),
                       'pose_given': s.container_pose is not None, 'residual_px': reg.residual,
+                      'size_measured': reg.size_measured,
                       'size_fit_mm': None if reg.best_size is None else list(reg.best_size),
+                      'size_fit_std_mm': None if reg.size_std is None else list(reg.size_std),
                       'size_fit_outline_px': None if reg.size_residuals is None else
                       dict(zip(('stated', 'fit'), reg.size_residuals))},
         'light': {'ambient': light.ambient.tolist(), 'ambient_from': light.ambient_from,
@@ -167,6 +171,12 @@ def table(report: dict) -> str:
                  f"({cam['K_photo'][0][2]:.2f} ± {sd['cx']:.2f}, {cam['K_photo'][1][2]:.2f} ± {sd['cy']:.2f}; "
                  f"top-left pixel's centre at 0.5), k1 {d['k1']:.4f} k2 {d['k2']:.4f} p1 {d['p1']:.5f} "
                  f"p2 {d['p2']:.5f} k3 {d['k3']:.4f}, RMS {cam['rms_px']:.3f} px")
+    box = report['container']
+    if box['size_fit_mm']:
+        fit = ' x '.join(f'{v:.2f} ± {e:.2f}' for v, e in zip(box['size_fit_mm'], box['size_fit_std_mm']))
+        said = ('measured (--size-mm auto)' if box['size_measured'] else
+                f"stated {'x'.join(f'{v:g}' for v in box['size_mm'])} mm")
+        lines.append(f"container: {said}; the photographs fit {fit} mm (statistical deviations)")
     cover = cam['coverage']
     lines.append(f"board coverage: {cover['share']:.0%} of the frame; the lens model uncertain by up to "
                  f"{cover['extrapolated_px']:.2f} px beyond it")

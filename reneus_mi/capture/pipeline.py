@@ -165,6 +165,9 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
         export.write_overlays(out, images, K_out, c2w, board, cal, s, measured=getattr(e, 'measured', None),
                                pose=reg_failed.pose if reg_failed else None)
         raise ReneusError(f'{e} (overlays in {os.path.join(out, "overlays")})') from None
+    given = s
+    if reg.size_measured:
+        s = dataclasses.replace(s, size_mm=reg.best_size)
     # Corners seen through the glass leave the calibration; the place is refined from the first.
     exclude = seen_through(cal, s.container, s.size_mm, reg.pose)
     cal = calibrate(board, {n: detections[n] for n in names}, size, exclude=exclude)
@@ -183,14 +186,16 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     names = [v.name for v in cal.views]
     images, valid = load_views(reduced, cal, (width, height), K_out)
     c2w = np.stack([v.c2w for v in cal.views])
-    reg = register(images, valid, K_out, c2w, board, s.container, s.size_mm, pose=s.container_pose,
+    reg = register(images, valid, K_out, c2w, board, s.container, given.size_mm, pose=s.container_pose,
                    start=reg.pose)
+    if reg.size_measured:
+        s = dataclasses.replace(s, size_mm=reg.best_size)
     light = measure(images, valid, K_out, c2w, board, reg.measured, names)
     _warn_uncovered(names, valid, K_out, c2w, s, reg.pose)
     # The overlays first: a transforms.json, written last, says that the dataset is whole.
     export.write_overlays(out, images, K_out, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
     report = export.write(out, s, board, cal, K_out, light.normalise(images), reg, light, left_out, cover,
-                          photos.camera_exif(shots[0].path))
+                          photos.camera_exif(shots[0].path), given=given)
     report['seconds'] = time.perf_counter() - start
     return report

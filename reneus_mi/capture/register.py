@@ -27,6 +27,7 @@ from scipy import ndimage, optimize
 
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.placement import local_mesh, pose_matrix, symmetry
+from reneus_mi.capture.settings import AUTO
 from reneus_mi.config import RenderConfig
 from reneus_mi.utils.errors import ReneusError
 
@@ -46,6 +47,9 @@ MIN_KNOWN = 0.5
 #: more than this along an axis (mm). On the simulated capture (640x480, 16 views) the best
 #: size was within 0.06, 0.38 and 0.12 mm of the block's 50x35x25 whatever size was stated.
 SIZE_TOLERANCE_MM = 1.0
+#: Rounds of place and size when the size is measured (--size-mm auto): the first from a
+#: cube of the silhouettes' width, the second from the first's size.
+SIZE_ROUNDS = 2
 #: The container is not found when the median view's residual exceeds this share of its
 #: apparent size (and 2 pixels).
 FOUND_LIMIT = 0.05
@@ -64,6 +68,10 @@ class Registration:
     #: residual of each: (stated size's, best size's), pixels.
     best_size: tuple[float, float, float] | None = None
     size_residuals: tuple[float, float] | None = None
+    #: The best size's standard deviations (mm), from the fit's Jacobian.
+    size_std: tuple[float, float, float] | None = None
+    #: Whether the size was measured (--size-mm auto) rather than stated.
+    size_measured: bool = False
 
 
 def predict_board(board: Board, K: np.ndarray, c2w: np.ndarray, size: tuple[int, int]):
@@ -245,7 +253,6 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
         squares[v] = K[0, 0] * board.square_mm / depth
         if need:
             measured[v] = changed_region(images[v], white, trusted[v], squares[v])
-    outline = Outline(shape, size, K, c2w)
     seen = [v for v in range(n) if measured[v].any()]
     if len(seen) < max(2, n // 3):
         err = ReneusError(f'container not found: {len(seen)} of {n} photographs show something on '
@@ -253,21 +260,13 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
                           'in most of them (see the overlays; or give --container-pose x,y,yaw)')
         err.measured = measured
         raise err
+    measured_size = size == AUTO
+    if measured_size:
+        size, start = _measure_size(measured, trusted, K, c2w, seen, shape, start)
+    outline = Outline(shape, size, K, c2w)
     fit = _Fit(outline, measured, trusted, seen)
-    period = symmetry(shape, size)
     if pose is None:
-        centre = _start(measured, K, c2w, seen, size) if start is None else start[:2]
-        apparent = np.array([outline.size((*centre, 0.0), v) for v in seen])
-        clip = TRUNCATION * apparent
-        if start is None:
-            # Every point of the outline counts: a place where nothing is known is no better
-            # than one where the outline misses.
-            def cost(p): return float(np.mean(np.abs(fit.distances(p, clip, unknown='clip'))))
-            yaws = np.arange(0.0, period, YAW_STEP) if period else np.array([0.0])
-            starts = [(*centre, y) for _, y in sorted((cost((*centre, y)), y) for y in yaws)[:3]]
-        else:
-            starts = [tuple(start)]
-        pose = min((_refine(fit, p0, clip, period) for p0 in starts), key=lambda r: r[0])[1]
+        pose = _search(fit, measured, K, c2w, seen, shape, size, start)
     pose = tuple(float(x) for x in pose)
     d = fit.distances(pose, unknown=None)
     apparent = np.array([outline.size(pose, v) for v in seen])
@@ -278,10 +277,11 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
         if known[j].mean() >= MIN_KNOWN:
             per_view[v] = float(np.sqrt(np.mean(d[j][inlier[j]] ** 2))) if inlier[j].any() else np.inf
     residual = float(np.sqrt(np.mean(d[inlier] ** 2))) if inlier.any() else float('inf')
-    result = Registration(pose=pose, residual=residual, view_residuals=per_view, measured=measured)
+    result = Registration(pose=pose, residual=residual, view_residuals=per_view, measured=measured,
+                          size_measured=measured_size)
     _check_place(board, pose, per_view, measured, result)
     if given is None:
-        _check_size(fit, pose, size, shape, TRUNCATION * apparent, result)
+        _check_size(fit, pose, size, shape, TRUNCATION * apparent, result, measured_size)
     limit = max(2.0, FOUND_LIMIT * float(np.median(apparent)))
     if not np.nanmedian(per_view[seen]) <= limit:
         err = ReneusError(f'container not found: at the best place x={pose[0]:.1f} mm, y={pose[1]:.1f} mm, '
@@ -294,8 +294,9 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
 
 
 def _best_size(fit: _Fit, pose, size, shape: str, clip) -> tuple[tuple, float, float]:
-    """The outer size whose outline, at its own best place, fits the silhouettes best; and
-    the mean clipped outline distance of the stated size and of that one (pixels)."""
+    """The outer size whose outline, at its own best place, fits the silhouettes best, its
+    standard deviations (mm), and the mean clipped outline distance of the stated size and of
+    that one (pixels)."""
     cylinder = shape == 'cylinder'
 
     def unpack(q):
@@ -309,17 +310,24 @@ def _best_size(fit: _Fit, pose, size, shape: str, clip) -> tuple[tuple, float, f
         return fit.distances(p, clip, size=dims).ravel()
     sol = optimize.least_squares(residuals, q0, loss='soft_l1', f_scale=1.0, diff_step=1e-3)
     _, dims = unpack(sol.x)
+    # The deviations from the solve's Jacobian (robustly weighted): the residuals' variance
+    # times (JᵀJ)⁻¹.
+    dof = max(1, sol.jac.shape[0] - sol.jac.shape[1])
+    cov = np.linalg.pinv(sol.jac.T @ sol.jac) * (2.0 * sol.cost / dof)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))[-(2 if cylinder else 3):]
+    sd = (sd[0], sd[0], sd[1]) if cylinder else tuple(sd)
 
     def cost(q): return float(np.mean(np.abs(residuals(q))))
-    return tuple(float(x) for x in dims), cost(q0), cost(sol.x)
+    return tuple(float(x) for x in dims), tuple(float(x) for x in sd), cost(q0), cost(sol.x)
 
 
-def _check_size(fit: _Fit, pose, size, shape: str, clip, result: Registration) -> None:
+def _check_size(fit: _Fit, pose, size, shape: str, clip, result: Registration, measured: bool) -> None:
     """Refuse a stated size that the photographs contradict: the size whose outline fits the
-    silhouettes best lies more than :data:`SIZE_TOLERANCE_MM` from it along some axis."""
-    best, stated_cost, best_cost = _best_size(fit, pose, size, shape, clip)
-    result.best_size, result.size_residuals = best, (stated_cost, best_cost)
-    if np.abs(np.subtract(best, size)).max() > SIZE_TOLERANCE_MM:
+    silhouettes best lies more than :data:`SIZE_TOLERANCE_MM` from it along some axis (a
+    ``measured`` size is that one: only its deviations are recorded)."""
+    best, sd, stated_cost, best_cost = _best_size(fit, pose, size, shape, clip)
+    result.best_size, result.size_std, result.size_residuals = best, sd, (stated_cost, best_cost)
+    if not measured and np.abs(np.subtract(best, size)).max() > SIZE_TOLERANCE_MM:
         err = ReneusError(
             f"size_mm={'x'.join(f'{v:g}' for v in size)} and the photographs disagree: the outline fits them "
             f"best at {'x'.join(f'{v:.1f}' for v in best)} mm (mean outline distance {best_cost:.2f} px, "
@@ -327,6 +335,39 @@ def _check_size(fit: _Fit, pose, size, shape: str, clip, result: Registration) -
             'the container again (--size-mm; see the overlays)')
         err.measured, err.registration = result.measured, result
         raise err
+
+
+def _search(fit: _Fit, measured, K, c2w, seen, shape: str, size, start) -> tuple:
+    """The place of the outline of ``size`` that fits the silhouettes: from ``start`` (a place
+    found before), or from the silhouettes' centroids and a coarse search over yaw."""
+    outline, period = fit.outline, symmetry(shape, size)
+    centre = _start(measured, K, c2w, seen, size) if start is None else start[:2]
+    clip = TRUNCATION * np.array([outline.size((*centre, 0.0), v) for v in seen])
+    if start is None:
+        # Every point of the outline counts: a place where nothing is known is no better
+        # than one where the outline misses.
+        def cost(p): return float(np.mean(np.abs(fit.distances(p, clip, unknown='clip'))))
+        yaws = np.arange(0.0, period, YAW_STEP) if period else np.array([0.0])
+        starts = [(*centre, y) for _, y in sorted((cost((*centre, y)), y) for y in yaws)[:3]]
+    else:
+        starts = [tuple(start)]
+    return min((_refine(fit, p0, clip, period) for p0 in starts), key=lambda r: r[0])[1]
+
+
+def _measure_size(measured, trusted, K, c2w, seen, shape: str, start) -> tuple[tuple, tuple]:
+    """The outer size the silhouettes suggest (``--size-mm auto``), and the place it fits at:
+    from a cube as wide as the silhouettes' median apparent width, :data:`SIZE_ROUNDS` rounds of
+    a place for the size, then the size and the place together."""
+    centre = _start(measured, K, c2w, seen, (1.0, 1.0, 1.0)) if start is None else start[:2]
+    widths = [np.sqrt(measured[v].sum()) * np.linalg.norm(c2w[v, :3, 3] - [*centre, 0.0]) / K[0, 0] for v in seen]
+    side = 0.8 * float(np.median(widths))
+    size, pose = (side, side, 0.8 * side), start
+    for _ in range(SIZE_ROUNDS):
+        fit = _Fit(Outline(shape, size, K, c2w), measured, trusted, seen)
+        pose = _search(fit, measured, K, c2w, seen, shape, size, pose)
+        clip = TRUNCATION * np.array([fit.outline.size(pose, v) for v in seen])
+        size = _best_size(fit, pose, size, shape, clip)[0]
+    return size, pose
 
 
 def _check_place(board: Board, pose, per_view: np.ndarray, measured: np.ndarray, result: Registration) -> None:

@@ -24,6 +24,8 @@ from reneus_mi.utils.io import load_json
 
 #: The capture file looked for beside the photographs.
 CAPTURE_FILE = 'capture.json'
+#: ``size_mm`` of a container to measure from the photographs.
+AUTO = 'auto'
 
 
 @dataclasses.dataclass
@@ -40,9 +42,10 @@ class CaptureSettings:
     """OpenCV ArUco dictionary of the markers, e.g. DICT_4X4_100, DICT_5X5_250."""
     container: str = 'box'
     """Container shape: box, rounded (a block with rounded edges) or cylinder (a jar)."""
-    size_mm: tuple[float, float, float] | None = None
+    size_mm: tuple[float, float, float] | str | None = None
     """Outer size of the container in millimetres, WxDxH: its footprint on the board and its
-    height (a cylinder: diameter x diameter x height)."""
+    height (a cylinder: diameter x diameter x height); auto: measured from the photographs
+    (report.json gives it with its uncertainty; calipers are better)."""
     ior: float | None = None
     """Index of refraction of the container (glass about 1.5, acrylic 1.49, epoxy resin 1.55)."""
     wall_mm: float | None = None
@@ -85,7 +88,7 @@ class CaptureSettings:
             value = getattr(self, name)
             if value is not None and not value > 0:
                 problem(name, f"{name}={value:g}; expected a positive size in millimetres")
-        if min(self.size_mm) <= 0:
+        if self.size_mm != AUTO and min(self.size_mm) <= 0:
             problem('size_mm', f"size_mm={_x(self.size_mm)}; expected positive sizes")
         sizes_make_sense = not problems     # the comparisons below need every size positive
         for name in ('ior', 'liquid_ior'):
@@ -111,11 +114,13 @@ class CaptureSettings:
 
     def _compare_sizes(self, problem) -> None:
         """The checks between sizes, each positive: marker and square, container and board, a
-        cylinder's diameters, the walls."""
+        cylinder's diameters, the walls (of a size stated, not measured)."""
         columns, rows = self.squares
         if not self.marker_mm < self.square_mm:
             problem('marker_mm', f"marker_mm={self.marker_mm:g} and square_mm={self.square_mm:g} contradict "
                                  "each other; expected a marker smaller than its square")
+        if self.size_mm == AUTO:    # measured from the photographs, checked there
+            return
         width, depth, _ = self.size_mm
         board = (columns * self.square_mm, rows * self.square_mm)
         if max(width, depth) > max(board) or width * depth > board[0] * board[1]:
@@ -168,6 +173,8 @@ _FORMATS = {'squares': (2, int, 'x'), 'size_mm': (3, float, 'x'), 'container_pos
 def _parse(name: str, value, where: str):
     if value is None:
         return None
+    if name == 'size_mm' and value == AUTO:
+        return AUTO
     if name in _FORMATS:
         return numbers(value, *_FORMATS[name], name, where)
     kind = typing.get_type_hints(CaptureSettings)[name]
@@ -237,7 +244,7 @@ def to_json(settings: CaptureSettings) -> dict:
         value = getattr(settings, f.name)
         if value is None:
             continue
-        if f.name in _FORMATS:
+        if f.name in _FORMATS and value != AUTO:
             _, kind, sep = _FORMATS[f.name]
             value = sep.join(f'{v:g}' for v in value)
         out[f.name] = value

@@ -760,6 +760,23 @@ def test_capture_wrong_size_refused(shots, tmp_path, size, parts):
         assert np.abs(np.array(best.groups(), float) - (50.0, 35.0, 25.0)).max() < 0.5, message
 
 
+def test_capture_measures_the_size_when_asked(shots, tmp_path):
+    """--size-mm auto: the block (50x35x25 mm) measured from the photographs, with deviations,
+    and the dataset's container made at that size."""
+    photos = photo_copies(shots, tmp_path / 'photos', 16)
+    given = [x if x != '50x35x25' else 'auto' for x in CAPTURE]
+    assert capture.main([str(photos), '-o', str(tmp_path / 'out'), *map(str, given), '--quiet']) == 0
+    with open(tmp_path / 'out' / 'report.json') as f:
+        report = json.load(f)
+    box = report['container']
+    assert box['size_measured'] and report['settings']['size_mm'] == 'auto'
+    assert np.abs(np.array(box['size_fit_mm']) - (50.0, 35.0, 25.0)).max() < 0.5, box['size_fit_mm']
+    assert box['size_mm'] == box['size_fit_mm'] and 0 < min(box['size_fit_std_mm'])
+    from reneus_mi.capture.placement import pose_matrix
+    block = trimesh.load(tmp_path / 'out' / 'container.ply')
+    block.apply_transform(np.linalg.inv(pose_matrix(box['pose'])))
+    np.testing.assert_allclose(block.extents, box['size_fit_mm'], atol=1e-3)
+
 def test_capture_report_lists_every_photograph_left_out(shots, tmp_path):
     """Left out before the calibration (no corners) and by it: all in report.json, with why."""
     photos = photo_copies(shots, tmp_path / 'photos', 16, blank=1)
