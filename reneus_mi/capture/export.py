@@ -23,6 +23,7 @@ import json
 import os
 
 import numpy as np
+from tqdm import tqdm
 
 from reneus_mi.capture import overlay
 from reneus_mi.capture.board import Board
@@ -59,7 +60,8 @@ def write_views(out: str, names: list[str], images: np.ndarray, K: np.ndarray, c
     ``transforms.json`` (written last) with the pinhole cameras, ``meta``'s keys and each
     frame's extra keys. ``K`` is one (3,3) for all views or (N,3,3)."""
     os.makedirs(os.path.join(out, 'images'), exist_ok=True)
-    for name, image in zip(names, images):
+    for name, image in tqdm(list(zip(names, images)), desc='write the dataset', unit='image', disable=None,
+                            leave=False):
         write_image(os.path.join(out, 'images', _stem(name) + '.png'), image)
     h, w = images.shape[1:3]
 
@@ -144,7 +146,7 @@ def write_overlays(out: str, images, K, c2w, board: Board, cal: Calibration, s: 
     """One overlay per photograph into ``out/overlays``."""
     segments = [segment for inset in ((0.0,) if s.wall_mm is None else (0.0, s.wall_mm))
                 for segment in overlay.wireframe(s.container, local_mesh(s.container, s.size_mm, inset))]
-    for i, view in enumerate(cal.views):
+    for i, view in enumerate(tqdm(cal.views, desc='overlays', unit='photo', disable=None, leave=False)):
         text = f'{view.name}: {int(view.used.sum())} corners, RMS {view.rms:.2f} px'
         if residuals is not None and np.isfinite(residuals[i]):
             text += f', container {residuals[i]:.2f} px'

@@ -103,7 +103,7 @@ def load_views(reduced: dict, cal: Calibration, out_size, K_out) -> tuple[np.nda
     """Every calibrated photograph undistorted to the dataset's pinhole camera, from its
     reduced copy (the intrinsics follow the reduction exactly)."""
     images, valid = [], []
-    for view in cal.views:
+    for view in tqdm(cal.views, desc='undistort', unit='photo', disable=None, leave=False):
         copy = reduced[view.name]
         K = np.diag([copy.shape[1] / cal.width, copy.shape[0] / cal.height, 1.0]) @ cal.K
         image, ok = undistort(copy, K, cal.dist, K_out, out_size)

@@ -20,7 +20,7 @@ import tempfile
 
 import numpy as np
 
-from reneus_mi.data.images import reduced_size, resize, write_image
+from reneus_mi.data.images import resize, write_image
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.render.preview import render_preview, render_view
 from reneus_mi.utils.io import atomic_write_text
@@ -38,8 +38,8 @@ console.error = (...args) => { noteError(args.map(String).join(' ')); consoleErr
 window.addEventListener('error', (e) => noteError(String(e.message)));
 window.addEventListener('unhandledrejection', (e) => noteError('unhandled: ' + String(e.reason)));
 """
-#: Side of the pictures on the page, pixels.
-PICTURE = 240
+#: Side of the pictures on the page, pixels, and the renders' samples per pixel.
+PICTURE, SPP = 240, 64
 
 _SCALE_BAR = """
 const viewer = document.getElementById('model');
@@ -131,7 +131,7 @@ def _turntable(mesh_path: str, dataset, tmp: str) -> list[tuple[str, str]]:
         angle = 2 * np.pi * k / TURNTABLE
         d = _rotate(start, up, angle)
         path = os.path.join(tmp, f'turn_{k}.png')
-        render_preview(mesh_path, path, direction=d, up=up, size=PICTURE)
+        render_preview(mesh_path, path, direction=d, up=up, size=PICTURE, spp=SPP)
         out.append((_image_uri(path), f'{360 * k // TURNTABLE} degrees'))
     return out
 
@@ -142,19 +142,35 @@ def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _pairs(mesh_path: str, dataset, tmp: str) -> list[tuple[str, str]]:
-    """PAIRS photographs spread over the dataset, each beside the mesh rendered by its camera."""
+    """PAIRS photographs spread over the dataset, each beside the mesh rendered by its camera,
+    both cropped to the container's projection (its mask) with a margin."""
     n = len(dataset.names)
-    h, w = dataset.images.shape[1:3]
-    size = reduced_size(w, h, PICTURE)
-    K_scale = np.diag([size[0] / w, size[1] / h, 1.0])
     out = []
     for i in sorted({int(round(x)) for x in np.linspace(0, n - 1, PAIRS)}):
+        (x0, y0, x1, y1), K = _window(dataset.masks[i]), dataset.K[i]
+        scale = PICTURE / max(x1 - x0, y1 - y0)
+        size = (max(1, int(round((x1 - x0) * scale))), max(1, int(round((y1 - y0) * scale))))
         photo = os.path.join(tmp, f'photo_{i}.png')
-        write_image(photo, resize(dataset.images[i], size))
+        write_image(photo, resize(dataset.images[i][y0:y1, x0:x1], size))
+        # The window's camera: the same rays, its pixels scaled and shifted.
+        K_window = np.array([[K[0, 0] * scale, 0.0, (K[0, 2] - x0) * scale],
+                             [0.0, K[1, 1] * scale, (K[1, 2] - y0) * scale], [0.0, 0.0, 1.0]])
         render = os.path.join(tmp, f'view_{i}.png')
-        render_view(mesh_path, render, K_scale @ dataset.K[i], dataset.c2w[i], size)
+        render_view(mesh_path, render, K_window, dataset.c2w[i], size, spp=SPP)
         out += [(_image_uri(photo), f'{dataset.names[i]}: photograph'), (_image_uri(render), f'{dataset.names[i]}: model')]
     return out
+
+
+def _window(mask: np.ndarray, margin: float = 0.15) -> tuple[int, int, int, int]:
+    """The bounding box of a mask grown by ``margin`` of its size each way, within the image
+    (the whole image for an empty mask): x0, y0, x1, y1."""
+    h, w = mask.shape
+    ys, xs = np.nonzero(mask)
+    if len(xs) == 0:
+        return 0, 0, w, h
+    grow = margin * max(xs.max() - xs.min(), ys.max() - ys.min())
+    return (max(0, int(xs.min() - grow)), max(0, int(ys.min() - grow)),
+            min(w, int(xs.max() + 1 + grow)), min(h, int(ys.max() + 1 + grow)))
 
 
 def _overlays(dataset) -> list[tuple[str, str]]:
