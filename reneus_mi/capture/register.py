@@ -239,7 +239,7 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
     not found (the result's silhouettes are on the exception, ``err.measured``).
     """
     n, h, w = images.shape[:3]
-    given = pose
+    pose_given = pose is not None
     trusted = np.zeros((n, h, w), bool)
     squares = np.zeros(n)
     need = measured is None
@@ -280,7 +280,7 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
     result = Registration(pose=pose, residual=residual, view_residuals=per_view, measured=measured,
                           size_measured=measured_size)
     _check_place(board, pose, per_view, measured, result)
-    if given is None:
+    if not pose_given:
         _check_size(fit, pose, size, shape, TRUNCATION * apparent, result, measured_size)
     limit = max(2.0, FOUND_LIMIT * float(np.median(apparent)))
     if not np.nanmedian(per_view[seen]) <= limit:

@@ -10,6 +10,7 @@ import sys
 
 from reneus_mi.export.package import IDENTIFIERS, export_batch, export_run
 from reneus_mi.train.run_folder import RunFolder
+from reneus_mi.utils import guards
 from reneus_mi.utils.errors import exit_on_error
 
 
@@ -29,6 +30,9 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     identifiers = {term: getattr(args, term) for term in IDENTIFIERS}
     with exit_on_error(RuntimeError):
+        # The archive is checked first: no file the command did not make is ever replaced.
+        archive = (guards.check_output_file(os.path.abspath(args.output) + '.zip', inputs=[args.run],
+                                            what='package archive') if args.zip else None)
         if os.path.isfile(RunFolder(args.run).result) or not os.path.isdir(args.run):
             export_run(args.run, args.output, identifiers=identifiers, creator=args.creator,
                        watertight=args.watertight)
@@ -36,9 +40,8 @@ def main(argv=None) -> int:
         else:
             packages = export_batch(args.run, args.output, identifiers=identifiers, creator=args.creator,
                                     watertight=args.watertight)
-        if args.zip:
-            archive = shutil.make_archive(os.path.abspath(args.output), 'zip', args.output)
-            packages.append(archive)
+        if archive:
+            packages.append(shutil.make_archive(archive[:-len('.zip')], 'zip', args.output))
     print(f"wrote {', '.join(packages) or 'nothing (no finished specimen)'}")
     return 0
 

@@ -35,6 +35,7 @@ import numpy as np
 import trimesh
 
 import reneus_mi
+from reneus_mi.batch.batch_folder import BatchFolder
 from reneus_mi.data import load_dataset
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.geometry.surface import components
@@ -233,7 +234,6 @@ def _record(metadata: dict, name: str) -> str:
 def export_batch(runs_dir: str, out: str, **options) -> list[str]:
     """Every finished specimen of a batch folder into ``out/NAME``, with the identifiers its
     manifest row gave; returns the packages written."""
-    from reneus_mi.batch.batch_folder import BatchFolder
     batch = BatchFolder(runs_dir)
     specimens = read_json(batch.collection)
     if specimens is None:

@@ -90,6 +90,14 @@ def test_command_line_zip_and_batch_identifiers(finished, tmp_path):
         assert 'B-1/B-1.ply' in z.namelist()
 
 
+def test_zip_never_replaces_a_file(finished, tmp_path):
+    """PACKAGE.zip that the command did not make is refused before anything is written."""
+    (tmp_path / 'package.zip').write_text('mine')
+    with pytest.raises(SystemExit, match='package archive .*package.zip: exists'):
+        export_command.main([str(finished), '-o', str(tmp_path / 'package'), '--zip'])
+    assert (tmp_path / 'package.zip').read_text() == 'mine' and not (tmp_path / 'package').exists()
+
+
 def test_unfinished_run_refused(finished, tmp_path):
     run = tmp_path / 'run'
     shutil.copytree(finished, run)
