@@ -90,7 +90,10 @@ def test_fixed_seed_is_bitwise_with_one_thread(scene_xml, tmp_path, one_thread):
     assert_same_state(a, b, exact=True)
 
 
-def test_fixed_seed_repeats_and_another_seed_differs(scene_xml, tmp_path):
+def test_fixed_seed_repeats_and_another_seed_differs(scene_xml, tmp_path, one_thread):
+    # One thread: on two the order of float sums varies, and Adam's first moment of a weight
+    # whose gradients nearly cancel can differ by 1 % between two runs of one seed (seen once in
+    # a clean-clone suite: 0.0128 against the 0.001 tolerance, the parameters 4e-6 apart).
     a, b = _two_runs(scene_xml, tmp_path)
     assert_same_state(a, b, exact=False)
     a, c = _two_runs(scene_xml, tmp_path / 'other', seed_b=1)
