@@ -826,15 +826,78 @@ def _heic(path):
     shutil.copy(path, path.with_suffix('.HEIC'))
 
 
+def _inverted(where):
+    """48 bytes inverted at ``where`` (a fraction of the file), its length unchanged: data that
+    libjpeg, and so Pillow, decode with a warning only."""
+    def spoil(path):
+        data = bytearray(path.read_bytes())
+        start = int(len(data) * where)
+        data[start:start + 48] = bytes(b ^ 0xFF for b in data[start:start + 48])
+        path.write_bytes(bytes(data))
+    return spoil
+
+
+def _two_names(path):
+    """A second photograph whose name differs from the first's only by case."""
+    shutil.copy(path.with_name('IMG_0002.jpg'), path.with_name('IMG_0001.JPG'))
+
+
 @pytest.mark.parametrize('spoil, parts', [
-    (_torn, ['IMG_0001.jpg: damaged photograph', 'truncated', 'copy it again']),
+    (_torn, ['IMG_0001.jpg: damaged photograph', 'copy it again']),
+    (_inverted(0.97), ['IMG_0001.jpg: damaged photograph', 'copy it again']),
+    (_inverted(0.5), ['IMG_0001.jpg: damaged photograph', 'copy it again']),
     (_cmyk, ['IMG_0001.jpg: a CMYK photograph', 'export it again as sRGB']),
     (_heic, ['IMG_0001.HEIC: a HEIC file', 'expected JPEG, PNG or TIFF']),
-], ids=['torn', 'cmyk', 'heic'])
+    (_two_names, ['IMG_0001.JPG and', 'IMG_0001.jpg: two photographs whose names differ only in case',
+                  'rename one']),
+], ids=['torn', 'damaged_near_the_end', 'damaged_in_the_middle', 'cmyk', 'heic', 'two_names'])
 def test_capture_photograph_whole_or_refused_by_name(shots, tmp_path, spoil, parts):
     photos = photo_copies(shots, tmp_path / 'photos', 3)
     spoil(photos / 'IMG_0001.jpg')
-    refused(capture.main, [photos, '-o', tmp_path / 'out', *CAPTURE], *parts, watch=[photos])
+    message = refused(capture.main, [photos, '-o', tmp_path / 'out', *CAPTURE], *parts, watch=[photos])
+    if spoil is _cmyk:
+        assert 'damaged' not in message, message
+
+
+def test_capture_same_photograph_twice_is_used_once(shots, tmp_path):
+    """A photograph copied under a second name (byte for byte, even one that differs from the
+    first only by its extension's case) is named and read once; one spoiled near its end is
+    caught although Pillow decodes it without a word."""
+    from PIL import Image
+    photos = photo_copies(shots, tmp_path / 'photos', 3)
+    shutil.copy(photos / 'IMG_0002.jpg', photos / 'IMG_0002.JPG')
+    shutil.copy(photos / 'IMG_0003.jpg', photos / 'copy of IMG_0003.jpg')
+    with pytest.warns(UserWarning, match=r'used once: IMG_0002.jpg \(a copy of IMG_0002.JPG\), '
+                                         r'copy of IMG_0003.jpg \(a copy of IMG_0003.jpg\)'):
+        files = capture_photos.list_photos(str(photos))
+    assert [os.path.basename(f) for f in files] == ['IMG_0001.jpg', 'IMG_0002.JPG', 'IMG_0003.jpg']
+    _inverted(0.97)(photos / 'IMG_0001.jpg')
+    Image.open(photos / 'IMG_0001.jpg').load()     # what the capture trusted before
+    with pytest.raises(ReneusError, match='IMG_0001.jpg: damaged photograph'):
+        capture_photos.decode(capture_photos.header(str(photos / 'IMG_0001.jpg')))
+
+
+def test_capture_damage_anywhere_is_caught(shots, tmp_path):
+    """48 bytes inverted at 20 places of each of 4 photographs: libjpeg warns of most; of the
+    rest, whose Huffman codes fall back into step, the colour step gives all but damage that
+    reaches only the last rows away (measured: 638 of 640 over 16 photographs at 40 places).
+    No whole photograph is refused."""
+    missed, tried = [], 0
+    for name in ['IMG_0001.jpg', 'IMG_0002.jpg', 'IMG_0003.jpg', 'IMG_0015.jpg']:
+        whole = tmp_path / name
+        shutil.copy(os.path.join(shots, name), whole)
+        capture_photos.decode(capture_photos.header(str(whole)))
+        for where in np.linspace(0.05, 0.95, 20):
+            path = tmp_path / f'spoiled_{where:.3f}_{name}'
+            shutil.copy(whole, path)
+            _inverted(where)(path)
+            tried += 1
+            try:
+                capture_photos.decode(capture_photos.header(str(path)))
+                missed.append(path.name)
+            except ReneusError as e:
+                assert 'damaged photograph' in str(e)
+    assert tried == 80 and len(missed) <= 1, missed
 
 
 def test_capture_photograph_stored_turned_is_used_as_its_tag_shows_it(shots, tmp_path):
