@@ -30,6 +30,7 @@ from reneus_mi.geometry.container import CREASE_ANGLE
 from reneus_mi.geometry.surface import POSTPROCESS_MODES
 from reneus_mi.render.ray_samplers import SamplerConfig
 from reneus_mi.render.surroundings import LIGHTS
+from reneus_mi.train.pixel_sampler import PixelSamplerConfig
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.validate import check_choice, check_numbers
 
@@ -172,6 +173,8 @@ class TrainConfig:
     batch_rays: int = 1024
     """Camera rays per step, drawn at random from the container masks of all views (with a
     sample budget: the first step's)."""
+    pixels: PixelSamplerConfig = dataclasses.field(default_factory=PixelSamplerConfig)
+    """Which pixels a batch draws and where in each its ray goes (thin parts)."""
     sample_budget: int = 0
     """Field samples per step: the batch then grows or shrinks each step (by 256 rays, up to 8x
     either way) to render about this many, so that rays the occupancy grid makes cheap fill the

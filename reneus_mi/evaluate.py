@@ -30,6 +30,11 @@ def _table(result: dict) -> str:
         (f"F-score @ {result['threshold']:g}", f"{result['fscore']:.4f}"),
         ('precision', f"{result['precision']:.4f}"),
         ('recall', f"{result['recall']:.4f}"),
+        *[(f'precision / recall @ {d}', f"{v['precision']:.4f} / {v['recall']:.4f}")
+          for d, v in result['at'].items()],
+        ('extents (GT axes)', '  '.join(f'{p:.4g}' for p in result['extents']['pred'])
+         + '  vs GT  ' + '  '.join(f'{g:.4g}' for g in result['extents']['gt'])),
+        ('extent error %', '  '.join(f'{e:+.1f}' for e in result['extents']['error_pct'])),
         ('points (pred kept / sampled)', f"{result['n_pred']} / {result['n_points']}"),
         ('connected components', str(result['components'])),
         ('post-processing', result['postprocess']),
@@ -56,6 +61,9 @@ def main(argv: list[str] | None = None) -> int:
                              '(default: %(default)s)')
     parser.add_argument('--threshold', type=float, default=0.01,
                         help='F-score distance in scene units (default: %(default)s, 1%% of the unit sphere)')
+    parser.add_argument('--at', type=float, nargs='+', metavar='D',
+                        help='further distances for precision and recall (default: THRESHOLD and twice it; '
+                             'a capture in mm: 0.1 0.2 and the footprint of one and two pixels)')
     parser.add_argument('--points', type=int, default=None,
                         help='number of surface samples per mesh (default: the paper\'s N)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the surface sampling (default: %(default)s)')
@@ -75,7 +83,8 @@ def main(argv: list[str] | None = None) -> int:
         if len(pred.faces) == 0:
             raise ReneusError(f"{args.pred}: nothing is left after --postprocess {args.postprocess}")
         result = chamfer(pred, gt, n_points=args.points, seed=args.seed,
-                         threshold=args.threshold, container=container)
+                         threshold=args.threshold, container=container,
+                         at=tuple(args.at) if args.at else (args.threshold, 2 * args.threshold))
         result['postprocess'] = args.postprocess
         result['components'] = components(pred)
         if args.json:

@@ -22,10 +22,13 @@ from reneus_mi.utils.io import atomic_savez
 
 def save(path: str, field: Field, opt, names: dict[str, str], *, iteration: int, best_loss: float,
          frame: FieldFrame, container: str | None, scaler=None, surroundings: dict | None = None,
-         batch: int | None = None, elapsed: float = 0.0) -> None:
+         batch: int | None = None, elapsed: float = 0.0, pixels: dict | None = None) -> None:
     """``names`` maps the optimiser's keys to the integrator's parameter names; ``surroundings``
-    holds the IOR, pose and light arrays (:meth:`Surroundings.params`)."""
+    holds the IOR, pose and light arrays (:meth:`Surroundings.params`), ``pixels`` the pixel
+    sampler's state (:meth:`PixelSampler.state`)."""
     arrays = field.arrays()
+    for name, value in (pixels or {}).items():
+        arrays[f'pixels/{name}'] = value
     for name, value in (surroundings or {}).items():
         arrays[f'surroundings/{name}'] = np.asarray(value, dtype=np.float32).ravel()
     for key, name in names.items():
@@ -49,10 +52,16 @@ def load_meta(path: str) -> dict:
         raise ReneusError(f'{path}: not a reneus-mi checkpoint ({e})') from None
 
 
+def load_group(path: str, group: str) -> dict[str, np.ndarray]:
+    """The arrays saved in a checkpoint under ``group/`` (``surroundings``: the IOR, pose and
+    light; ``pixels``: the pixel sampler's), by name."""
+    with np.load(path, allow_pickle=False) as f:
+        return {k[len(group) + 1:]: f[k] for k in f.files if k.startswith(group + '/')}
+
+
 def load_surroundings(path: str) -> dict[str, np.ndarray]:
     """The IOR, pose and light arrays saved in a checkpoint, by name."""
-    with np.load(path, allow_pickle=False) as f:
-        return {k[len('surroundings/'):]: f[k] for k in f.files if k.startswith('surroundings/')}
+    return load_group(path, 'surroundings')
 
 
 def load_frame(path: str) -> tuple[FieldFrame, str | None]:

@@ -135,7 +135,8 @@ class Trainer:
         self.frame = frame or integrator.frame_of(scene)
         # A refined container may move out of the masks it was drawn with: a margin of
         # pixels around them (outside the glass the photographs show the ambient, as renders do).
-        self.pixels = PixelSampler(dataset, cfg.seed, margin=POSE_MARGIN if cfg.refine.pose else 0.0)
+        self.pixels = PixelSampler(dataset, cfg.seed, margin=POSE_MARGIN if cfg.refine.pose else 0.0,
+                                   config=cfg.pixels)
         self.silhouette = None
         if cfg.refine.pose and cfg.refine.silhouette_weight > 0:
             if not dataset.masks_measured:
@@ -203,7 +204,7 @@ class Trainer:
         checkpoint.save(self.checkpoint_path, self.field, self.opt, self.names, iteration=self.iteration,
                         best_loss=self.best_loss, frame=self.frame, container=self.container,
                         scaler=self.scaler, surroundings=self.surroundings.params(), batch=self.batch,
-                        elapsed=self.elapsed)
+                        elapsed=self.elapsed, pixels=self.pixels.state())
         self.saved_iteration = self.iteration
 
     def unsaved(self) -> bool:
@@ -223,6 +224,7 @@ class Trainer:
             raise ReneusError(f'{path}: no checkpoint to resume from')
         self.integrator.configure(field=load_field(path))
         self.surroundings.load(checkpoint.load_surroundings(path), path)
+        self.pixels.load(checkpoint.load_group(path, 'pixels'), path)
         self._setup_optimizer()
         meta = checkpoint.restore(path, self.opt, self.names, self.scaler)
         self.iteration = self.saved_iteration = meta['iteration']
@@ -254,6 +256,7 @@ class Trainer:
         batch = self.batch
         ray, target = self.pixels.batch(it, batch)
         result = self.integrator.render_rays(self.scene, ray)
+        self.pixels.record(result.color, target)
         silhouette = None if self.silhouette is None else self.silhouette(it, self.surroundings.pose)
         terms = losses.loss_dict(result, target, cfg, silhouette)
         loss = losses.total(terms)

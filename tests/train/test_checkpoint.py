@@ -54,6 +54,20 @@ def test_resume_is_bitwise_with_one_thread(scene_xml, tmp_path, one_thread):
     assert_same_state(a, b, exact=True)
 
 
+def test_resume_of_error_driven_jittered_batches_is_bitwise(scene_xml, tmp_path, one_thread):
+    """The pixel errors and their distribution are the sampler's state: a run resumed between
+    two rebuilds of the distribution (every 2 steps, resumed after 3) draws what the unbroken
+    run drew, sub-pixel offsets included."""
+    from reneus_mi.train.pixel_sampler import PixelSamplerConfig
+    pixels = PixelSamplerConfig(jitter=True, error_share=0.5, error_refresh=2)
+    a, b = _resume_vs_unbroken(scene_xml, tmp_path, pixels=pixels)
+    assert_same_state(a, b, exact=True)
+    with np.load(tmp_path / 'broken' / 'checkpoint.npz') as f:
+        error = f['pixels/error']
+    # The errors of the first 3 steps' pixels (64 rays each; unseen pixels stay at 1).
+    assert 0 < np.count_nonzero(error != 1.0) <= 3 * 64
+
+
 def test_resume_matches_unbroken_run(scene_xml, tmp_path):
     a, b = _resume_vs_unbroken(scene_xml, tmp_path)
     assert_same_state(a, b, exact=False)
