@@ -218,12 +218,12 @@ def _decode_jpeg(path: str, data: bytes) -> np.ndarray:
 #: Pixel size (width, height) of a JPEG's minimum coded unit, by chroma subsampling.
 _MCU = {'444': (8, 8), '422': (16, 8), '420': (16, 16), '440': (8, 16), '411': (32, 8), '441': (8, 32),
         'Gray': (8, 8)}
-#: A step of the colours along the MCUs that damage leaves: at least this many 8-bit levels, and
-#: this many times the largest step between rows inside the MCUs (a photograph's own edges).
-#: Measured on 16 simulated photographs, each spoiled at 40 places (tests/commands): clean ones
-#: step by at most 1.25 levels (2.0 inside), the 65 that libjpeg decodes without a warning by
-#: 3.75-181, but for two whose damage reaches a few blocks of the last rows.
-STEP_LEVELS, STEP_RATIO = 3.0, 1.5
+#: The least step (8-bit levels) of a JPEG's colours that damage leaves and :func:`colour_step`
+#: refuses (see its measurement in tests/commands/test_bad_inputs.py).
+STEP_LEVELS = 3.0
+#: Each side of the step, and each side that must show none, spans at least this share of
+#: the width: a step caught nearer a row's end is not told from a photograph's own edges.
+STEP_SIDE = 1.0 / 8.0
 
 
 def colour_step(rgb: np.ndarray, subsampling: str) -> tuple[float, int, int]:
@@ -231,52 +231,36 @@ def colour_step(rgb: np.ndarray, subsampling: str) -> tuple[float, int, int]:
 
     Without restart markers a JPEG codes each block's mean colour as the change from the block
     before; Huffman codes fall back into step a few bytes after damage, so libjpeg decodes on
-    without a warning, but every block after it keeps the wrong mean: the colours step, by one
-    constant, along one row of MCUs from the damage on and along the next one before it. Per
-    MCU, the step between the two pixel rows either side of each MCU row's top edge; its median
-    over every stretch of one image width in decoding order; the largest, against the same
-    measured between rows inside the MCUs.
+    without a warning, but every block after it keeps the wrong mean. Its colours then step by
+    one constant along the top edge of the MCU row r of the damage, right of the column x0 where
+    it happened, and along the top edge of row r + 1 left of x0; nowhere else. Per MCU, the step
+    between the two pixel rows either side of each MCU row's top edge; a step is refused when
+    both of those stretches step alike (their medians, per YCbCr channel) and the two that
+    complete their rows do not. A photograph's own straight edge along one MCU row's top edge
+    steps across the whole row, not from one row to the next at x0.
     """
     w_mcu, h_mcu = _MCU.get(subsampling, (16, 16))
     h, w = rgb.shape[:2]
     nx = w // w_mcu
-    if nx == 0 or h < 2 * h_mcu + 2:
+    side = max(1, int(np.ceil(STEP_SIDE * nx)))
+    ys = np.arange(h_mcu, h - 1, h_mcu)
+    if nx < 2 * side or len(ys) < 2:
         return 0.0, 0, 0
-
-    def largest(offset):
-        ys = np.arange(h_mcu + offset, h - 1, h_mcu)
-        # Only the rows it needs, in YCbCr (the JPEG's own components), as floats.
-        rows = cv2.cvtColor(rgb[np.concatenate([ys - 2, ys - 1, ys, ys + 1])], cv2.COLOR_RGB2YCrCb)
-        above2, above1, below0, below1 = rows.astype(np.float32).reshape(4, len(ys), w, 3)
-        steps = (below0 + below1 - above1 - above2) * 0.5
-        flat = np.median(steps[:, :nx * w_mcu].reshape(len(ys) * nx, w_mcu, 3), axis=1)
-        # A stretch starting within nx/16 MCUs of the damage is still 15/16 stepped.
-        starts = np.arange(0, len(flat) - nx + 1, max(1, nx // 16))
-        med = np.abs(np.median(flat[starts[:, None] + np.arange(nx)], axis=1))
-        k, c = np.unravel_index(np.argmax(med), med.shape)
-        return float(med[k, c]), int(ys[starts[k] // nx]), int(starts[k] % nx) * w_mcu
-    step, y, x = largest(0)
-    inside = max(largest(h_mcu * i // 4)[0] for i in (1, 2, 3))
-    return (step, y, x) if step >= STEP_LEVELS and step >= STEP_RATIO * inside else (0.0, 0, 0)
-
-
-def _decode_other(path: str) -> np.ndarray:
-    """A PNG or TIFF through Pillow (which raises on a truncated or corrupt file)."""
-    guard, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
-    try:
-        with Image.open(path) as image:
-            if image.mode == 'CMYK':
-                raise _cmyk(path)
-            image.load()
-            if image.mode in _GREY16:
-                grey = (np.asarray(image, np.uint16) >> 8).astype(np.uint8)
-                return np.repeat(grey[..., None], 3, axis=2)
-            if image.mode not in ('1', 'L', 'LA', 'P', 'PA', 'RGB', 'RGBA'):
-                raise ReneusError(f'{path}: photograph with {image.mode} samples; expected 8- or 16-bit '
-                                  'grey or RGB')
-            return np.asarray(image.convert('RGB'))
-    finally:
-        Image.MAX_IMAGE_PIXELS = guard
+    # Only the rows it needs, in YCbCr (the JPEG's own components), as floats.
+    rows = cv2.cvtColor(rgb[np.concatenate([ys - 2, ys - 1, ys, ys + 1])], cv2.COLOR_RGB2YCrCb)
+    above2, above1, below0, below1 = rows.astype(np.float32).reshape(4, len(ys), w, 3)
+    steps = np.median(((below0 + below1 - above1 - above2) * 0.5)[:, :nx * w_mcu]
+                      .reshape(len(ys), nx, w_mcu, 3), axis=2)          # (rows, MCUs, channels)
+    best = (0.0, 0, 0)
+    for x0 in range(side, nx - side + 1, max(1, side // 2)):
+        right, left = np.median(steps[:-1, x0:], axis=1), np.median(steps[1:, :x0], axis=1)
+        rest = np.maximum(np.abs(np.median(steps[:-1, :x0], axis=1)), np.abs(np.median(steps[1:, x0:], axis=1)))
+        alike = np.where(np.sign(right) == np.sign(left), np.minimum(np.abs(right), np.abs(left)), 0.0)
+        alike = np.where(rest < 0.5 * alike, alike, 0.0).max(axis=1)
+        r = int(np.argmax(alike))
+        if alike[r] > best[0]:
+            best = (float(alike[r]), int(ys[r]), x0 * w_mcu)
+    return best if best[0] >= STEP_LEVELS else (0.0, 0, 0)
 
 
 def _cmyk(path: str) -> ReneusError:

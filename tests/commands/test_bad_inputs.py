@@ -879,9 +879,11 @@ def test_capture_same_photograph_twice_is_used_once(shots, tmp_path):
 
 def test_capture_damage_anywhere_is_caught(shots, tmp_path):
     """48 bytes inverted at 20 places of each of 4 photographs: libjpeg warns of most; of the
-    rest, whose Huffman codes fall back into step, the colour step gives all but damage that
-    reaches only the last rows away (measured: 638 of 640 over 16 photographs at 40 places).
-    No whole photograph is refused."""
+    rest, whose Huffman codes fall back into step, the colour step gives most away (measured
+    over the 16 photographs at 40 places: libjpeg 586 of 640, the colour step 48 of the 54
+    left; missed: damage within an eighth of a row's end, or in the last rows). No whole
+    photograph is refused, nor one whose own straight edge lies along an MCU row's top edge
+    (a board's row of squares seen from low, as Blender's photographs showed it)."""
     missed, tried = [], 0
     for name in ['IMG_0001.jpg', 'IMG_0002.jpg', 'IMG_0003.jpg', 'IMG_0015.jpg']:
         whole = tmp_path / name
@@ -897,7 +899,13 @@ def test_capture_damage_anywhere_is_caught(shots, tmp_path):
                 missed.append(path.name)
             except ReneusError as e:
                 assert 'damaged photograph' in str(e)
-    assert tried == 80 and len(missed) <= 1, missed
+    assert tried == 80 and len(missed) <= 2, missed
+    from PIL import Image
+    edge = np.full((480, 640, 3), 230, np.uint8)
+    edge[240:, 40:600] = 40                        # rows 240 on: the top edge of MCU row 15
+    edge[240:, 300:330] = 230
+    Image.fromarray(edge).save(tmp_path / 'edge.jpg', quality=90)
+    assert capture_photos.decode(capture_photos.header(str(tmp_path / 'edge.jpg'))).shape == edge.shape
 
 
 def test_capture_photograph_stored_turned_is_used_as_its_tag_shows_it(shots, tmp_path):
