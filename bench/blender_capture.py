@@ -162,9 +162,12 @@ def ellipsoid(centre, semi, rings: int = 16):
     return np.asarray(centre) + V * np.asarray(semi), F
 
 
-def limb(points, radii, per_segment: int = 6, sides: int = 12):
+def limb(points, radii, per_segment: int = 6, sides: int = 12, limbs: list | None = None, name: str = ''):
     """A jointed limb: a tube along the polyline ``points`` (joints), its radius going linearly
-    from joint to joint, with a ball at each inner joint."""
+    from joint to joint, with a ball at each inner joint. ``limbs``: where its axis is recorded
+    as ``(name, joints, radii)``, from the body out (the truth's legs and antennae)."""
+    if limbs is not None:
+        limbs.append((name, np.asarray(points, float), np.asarray(radii, float)))
     pts, rad = [np.asarray(points[0], float)], [radii[0]]
     for k in range(len(points) - 1):
         pts += list(bs.segment(points[k], points[k + 1], per_segment + 1)[1:])
@@ -174,10 +177,11 @@ def limb(points, radii, per_segment: int = 6, sides: int = 12):
     return parts
 
 
-def ant():
+def ant(limbs: list | None = None):
     """Gaster, petiole, thorax and head; six legs that go out and up to the knee, then out and
     down; elbowed antennae. Legs 0.048-0.034 of the unit thick (fitted to a length of 12 mm:
-    0.53 mm at the femur, 0.37 mm at the tarsus), antennae 0.03 (0.33 mm)."""
+    0.53 mm at the femur, 0.37 mm at the tarsus), antennae 0.03 (0.33 mm). ``limbs``: see
+    :func:`limb`."""
     parts = [ellipsoid((-0.30, 0.0, 0.03), (0.20, 0.135, 0.125)),
              ellipsoid((-0.075, 0.0, 0.05), (0.035, 0.03, 0.05)),
              bs.tube(bs.segment((-0.14, 0.0, 0.04), (0.0, 0.0, 0.045), 6), 0.022, sides=12),
@@ -185,24 +189,26 @@ def ant():
              bs.tube(bs.segment((0.2, 0.0, 0.05), (0.28, 0.0, 0.055), 5), 0.03, sides=12),
              ellipsoid((0.335, 0.0, 0.06), (0.085, 0.075, 0.065))]
     for side in (-1.0, 1.0):
-        for x, reach in ((0.03, -0.16), (0.10, -0.02), (0.17, 0.13)):
+        for pair, (x, reach) in enumerate(((0.03, -0.16), (0.10, -0.02), (0.17, 0.13))):
             a = np.array([x, side * 0.045, 0.02])
             knee = a + [0.5 * reach, side * 0.19, 0.09]
             ankle = knee + [0.8 * reach, side * 0.11, -0.23]
             foot = ankle + [0.4 * reach, side * 0.07, -0.05]
-            parts += limb([a, knee, ankle, foot], [0.024, 0.022, 0.019, 0.017])
+            parts += limb([a, knee, ankle, foot], [0.024, 0.022, 0.019, 0.017], limbs=limbs,
+                          name=f"{'hind middle fore'.split()[pair]} leg {'left' if side < 0 else 'right'}")
         # Mandible and antenna (scape up and out, funiculus forward, a club at its tip).
         parts.append(bs.tube(bs.segment((0.39, side * 0.03, 0.04), (0.45, side * 0.012, 0.035), 5),
                              np.linspace(0.018, 0.008, 5), sides=10))
         base = np.array([0.38, side * 0.035, 0.09])
         elbow = base + [0.03, side * 0.07, 0.11]
         tip = elbow + [0.16, side * 0.07, -0.02]
-        parts += limb([base, elbow, tip], [0.016, 0.015, 0.016])
+        parts += limb([base, elbow, tip], [0.016, 0.015, 0.016], limbs=limbs,
+                      name=f"antenna {'left' if side < 0 else 'right'}")
         parts.append(bs.sphere(tip, 0.022, rings=6))
     return parts
 
 
-def beetle():
+def beetle(limbs: list | None = None):
     """A broad oval body (elytra, pronotum, head) on six short stout legs, short antennae."""
     parts = [ellipsoid((-0.12, 0.0, 0.06), (0.32, 0.23, 0.13), rings=24),
              ellipsoid((0.23, 0.0, 0.05), (0.11, 0.18, 0.09)),
@@ -218,7 +224,7 @@ def beetle():
     return parts
 
 
-def shell():
+def shell(limbs: list | None = None):
     """An ammonite-like coil: a tube along a logarithmic spiral in the xz plane (each whorl
     twice the last, the tube 0.42 of the radius: the whorls overlap), capped by a ball."""
     theta = np.linspace(0.0, 3.5 * 2 * np.pi, 420)
@@ -445,7 +451,11 @@ def make_specimen(rig: dict) -> tuple[np.ndarray, np.ndarray]:
     """The specimen, remeshed, placed in the block at mid-height; its triangles in the board's
     frame. Refuses one that comes closer than CLEARANCE to a wall."""
     spec = SPECIMENS[rig['specimen']]
-    parts = bs.fit(spec['make'](), (0.5, 0.5, 0.5))          # largest extent 1
+    limbs = []
+    parts = spec['make'](limbs)
+    # The limbs' joints move with the parts (inside them, they leave the bounding box alone).
+    fitted = bs.fit(parts + [(joints, np.zeros((0, 3), int)) for _, joints, _ in limbs], (0.5, 0.5, 0.5))
+    parts, joints = fitted[:len(parts)], [v for v, _ in fitted[len(parts):]]
     ob, V, F = bs.object_mesh(rig['specimen'], parts, spec['palette'])
     W, D, H = rig['size_mm']
     length = SPECIMEN_SHARE * W
@@ -462,6 +472,10 @@ def make_specimen(rig: dict) -> tuple[np.ndarray, np.ndarray]:
     ob.matrix_world = Matrix((FLIP @ to_board).tolist())
     rig['specimen_extent_mm'] = (inside.max(axis=0) - inside.min(axis=0)).round(2).tolist()
     rig['specimen_wall_gap_mm'] = round(float(gap), 2)
+    # Radii scale as the joints do (fit's scale, times the specimen's length).
+    rig['limbs'] = [{'name': name, 'joints_mm': (j @ to_board[:3, :3].T + to_board[:3, 3]).round(4).tolist(),
+                     'radii_mm': (radii * length * np.linalg.norm(j[1] - j[0]) / np.linalg.norm(raw[1] - raw[0]))
+                     .round(4).tolist()} for (name, raw, radii), j in zip(limbs, joints)]
     # A half turn about x keeps the winding: the triangles stay outward.
     return V @ to_board[:3, :3].T + to_board[:3, 3], F
 
@@ -613,10 +627,11 @@ def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
     print()
     bs.write_json(os.path.join(photos, 'capture.json'), capture_settings(rig))
     W, D, H = rig['size_mm']
+    limbs = rig.pop('limbs')
     result = {'rig': {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in rig.items()},
               'K': K.tolist(), 'distortion': list(dist), 'width': width, 'height': height, 'views': views,
               'container': {'shape': 'box', 'size_mm': [W, D, H], 'pose': list(rig['pose']), 'mesh': 'container.ply'},
-              'specimen': 'specimen.ply', 'ambient': AMBIENT,
+              'specimen': 'specimen.ply', 'limbs': limbs, 'ambient': AMBIENT,
               'board': {'white': PAPER_WHITE * AMBIENT, 'black': INK_BLACK * AMBIENT, 'contact_gap_mm': CONTACT_GAP},
               'frame': 'board (OpenCV ChArUco), millimetres',
               'renderer': 'blender cycles', 'blender': bpy.app.version_string,
@@ -735,8 +750,22 @@ def main(argv=None) -> None:
     parser.add_argument('--preview', action='store_true', help=f'render only {PREVIEW_VIEWS} of the views')
     parser.add_argument('--check', action='store_true',
                         help='only compare the corners of existing PHOTOS with the TRUTH of them')
+    parser.add_argument('--limbs', action='store_true',
+                        help="only write the legs' and antennae's axes into an existing TRUTH (as the same "
+                             'arguments make them), for a capture rendered before truth.json had them')
     args = parser.parse_args(argv)
     cv2.setNumThreads(THREADS)
+    if args.limbs:
+        rig = make_rig(args)
+        setup_cycles(rig['spp'])
+        make_specimen(rig)
+        path = os.path.join(args.truth, 'truth.json')
+        with open(path) as f:
+            meta = json.load(f)
+        meta['limbs'] = rig['limbs']
+        bs.write_json(path, meta)
+        print(f"{len(rig['limbs'])} limbs written to {path}")
+        return
     if not args.check:
         rig = make_rig(args)
         result = capture(rig, args.photos, args.truth, args.preview)

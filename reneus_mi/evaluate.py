@@ -14,12 +14,13 @@ import json
 import sys
 
 from reneus_mi.geometry.chamfer import chamfer
+from reneus_mi.geometry.limbs import limb_reach
 from reneus_mi.geometry.container import load_container
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.geometry.surface import POSTPROCESS_MODES, components, postprocess
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError, exit_on_error
-from reneus_mi.utils.io import atomic_write_text
+from reneus_mi.utils.io import atomic_write_text, load_json
 
 
 def _table(result: dict) -> str:
@@ -35,6 +36,8 @@ def _table(result: dict) -> str:
         ('extents (GT axes)', '  '.join(f'{p:.4g}' for p in result['extents']['pred'])
          + '  vs GT  ' + '  '.join(f'{g:.4g}' for g in result['extents']['gt'])),
         ('extent error %', '  '.join(f'{e:+.1f}' for e in result['extents']['error_pct'])),
+        *[(f"{limb['name']}", f"reach {limb['reach']:.4g} of {limb['length']:.4g} ({limb['error_pct']:+.1f} %), "
+                               f"longest gap {limb['longest_gap']:.3g}") for limb in result.get('limbs', [])],
         ('points (pred kept / sampled)', f"{result['n_pred']} / {result['n_points']}"),
         ('connected components', str(result['components'])),
         ('post-processing', result['postprocess']),
@@ -64,6 +67,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--at', type=float, nargs='+', metavar='D',
                         help='further distances for precision and recall (default: THRESHOLD and twice it; '
                              'a capture in mm: 0.1 0.2 and the footprint of one and two pixels)')
+    parser.add_argument('--limbs', metavar='TRUTH_JSON',
+                        help="a JSON file whose 'limbs' are the specimen's legs and antennae (name, joints_mm, "
+                             'radii_mm; bench/blender_capture.py writes them): how far PRED reaches along each, '
+                             'within THRESHOLD of its radius')
     parser.add_argument('--points', type=int, default=None,
                         help='number of surface samples per mesh (default: the paper\'s N)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the surface sampling (default: %(default)s)')
@@ -85,6 +92,11 @@ def main(argv: list[str] | None = None) -> int:
         result = chamfer(pred, gt, n_points=args.points, seed=args.seed,
                          threshold=args.threshold, container=container,
                          at=tuple(args.at) if args.at else (args.threshold, 2 * args.threshold))
+        if args.limbs:
+            limbs = load_json(args.limbs, 'limbs file').get('limbs')
+            if not limbs:
+                raise ReneusError(f"{args.limbs}: no 'limbs'; expected a list of legs and antennae")
+            result['limbs'] = limb_reach(pred, limbs, tolerance=args.threshold)
         result['postprocess'] = args.postprocess
         result['components'] = components(pred)
         if args.json:

@@ -109,6 +109,28 @@ def _insect_distance(p):
     return body
 
 
+def _insect_body_distance(p):
+    body = _ellipsoid(p, (-0.36, 0.0, 0.06), (0.38, 0.18, 0.15))
+    body = dr.minimum(body, _ellipsoid(p, (0.12, 0.0, 0.07), (0.17, 0.12, 0.11)))
+    return dr.minimum(body, _ellipsoid(p, (0.37, 0.0, 0.09), (0.10, 0.09, 0.085)))
+
+
+def insect_limbs(points: np.ndarray, container: str = 'box', margin: float = 0.15) -> np.ndarray:
+    """Which ``points`` of the normalised insect (as :func:`normalize` places it in its
+    container) lie on its legs and antennae: farther than ``LIMB_GAP`` of its own size from the
+    body's ellipsoids. What a reconstruction that keeps only the body misses."""
+    obj = insect()
+    lo, hi = obj.bounds
+    scale = normalize(obj, margin=margin, container=container)[0].extents.max() / obj.extents.max()
+    own = np.asarray(points) / scale + 0.5 * (lo + hi)
+    body = _insect_body_distance(mi.Point3f(*own.T.astype(np.float32)))
+    return np.asarray(body) > LIMB_GAP
+
+
+#: Distance from the insect's body (in its own units, 1.66 long) beyond which a point is a limb's.
+LIMB_GAP = 0.06
+
+
 def insect() -> trimesh.Trimesh:
     """Body along +x (head forward), six legs reaching below it, two antennae."""
     mesh = mesh_sdf(_insect_distance, (-0.80, -0.66, -0.32), (0.86, 0.66, 0.38), pitch=0.006)

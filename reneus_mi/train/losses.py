@@ -71,9 +71,15 @@ def eikonal(eikonal_sum: mi.Float, n_samples: mi.Float) -> mi.Float:
     return dr.sum(eikonal_sum) / dr.maximum(dr.sum(n_samples), 1.0)
 
 
-def mse(pred: mi.Color3f, target: mi.Color3f) -> mi.Float:
-    """Mean squared error of the pixel values (no gradient): what PSNR measures."""
-    return mean(dr.square(dr.detach(pred) - target))
+def mse(pred: mi.Color3f, target: mi.Color3f, among: mi.Bool | None = None) -> mi.Float:
+    """Mean squared error of the pixel values (no gradient): what PSNR measures; ``among``: of
+    those rays only (the ones drawn uniformly: rays drawn where the error is large would
+    measure the worst pixels, not the photographs)."""
+    error = dr.square(dr.detach(pred) - target)
+    if among is None:
+        return mean(error)
+    kept = dr.select(among, 1.0, 0.0)
+    return dr.sum(dr.sum(error, axis=0) * kept) / dr.maximum(3.0 * dr.sum(kept), 1.0)
 
 
 def psnr(mse_value: float) -> float:

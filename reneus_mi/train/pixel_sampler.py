@@ -93,16 +93,21 @@ class PixelSampler:
         if self.error is not None:
             if step % cfg.error_refresh == 0:
                 self.cdf = _cdf(self.error)
-            lane = dr.arange(mi.UInt32, n)
-            guided = mi.Float(lane) >= dr.opaque(mi.Float, (1.0 - cfg.error_share) * n)
             total = dr.gather(mi.Float, self.cdf, self.n_pixels - 1)
             u = rng.next_float32() * total
             by_error = dr.binary_search(0, self.n_pixels - 1, lambda k: dr.gather(mi.Float, self.cdf, k) <= u)
-            slot = dr.select(guided, by_error, slot)
+            uniform = self.uniform_lanes(n)
+            slot = by_error if uniform is None else dr.select(uniform, slot, by_error)
             self.drawn = slot
         index = dr.gather(mi.UInt32, self.pixels, slot)
         offset = (rng.next_float32(), rng.next_float32()) if cfg.jitter else (0.5, 0.5)
         return self.rays(index, offset), self.color(index)
+
+    def uniform_lanes(self, n: int) -> mi.Bool | None:
+        """Which of a batch's ``n`` rays are drawn uniformly (None: all of them, or none)."""
+        if self.error is None or self.config.error_share == 1.0:
+            return None
+        return mi.Float(dr.arange(mi.UInt32, n)) < dr.opaque(mi.Float, (1.0 - self.config.error_share) * n)
 
     def record(self, color: mi.Color3f, target: mi.Color3f) -> None:
         """The colour error of the batch just drawn, per pixel, for the next draws by error."""

@@ -260,7 +260,7 @@ class Trainer:
         silhouette = None if self.silhouette is None else self.silhouette(it, self.surroundings.pose)
         terms = losses.loss_dict(result, target, cfg, silhouette)
         loss = losses.total(terms)
-        mse = losses.mse(result.color, target)
+        mse = losses.mse(result.color, target, self.pixels.uniform_lanes(batch))
         samples = dr.sum(result.n_samples)
         # Scheduled, the loss terms are computed in the launch that evaluates
         # the gradients rather than in a forward pass of their own.
