@@ -38,9 +38,9 @@ if TYPE_CHECKING:   # the config imports this module, and the dataset's module t
 class PixelSamplerConfig:
     """Which pixels a training batch draws, and where in each its ray goes."""
 
-    jitter: bool = False
+    jitter: bool = True
     """Rays through a random point of each pixel (False: through its centre)."""
-    error_share: float = 0.0
+    error_share: float = 0.5
     """Share of each batch drawn in proportion to each pixel's colour error when it was last
     drawn (the rest uniformly over the container's pixels; 0: all uniformly)."""
     error_refresh: int = 32
