@@ -263,6 +263,25 @@ def colour_step(rgb: np.ndarray, subsampling: str) -> tuple[float, int, int]:
     return best if best[0] >= STEP_LEVELS else (0.0, 0, 0)
 
 
+def _decode_other(path: str) -> np.ndarray:
+    """A PNG or TIFF through Pillow (which raises on a truncated or corrupt file)."""
+    guard, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
+    try:
+        with Image.open(path) as image:
+            if image.mode == 'CMYK':
+                raise _cmyk(path)
+            image.load()
+            if image.mode in _GREY16:
+                grey = (np.asarray(image, np.uint16) >> 8).astype(np.uint8)
+                return np.repeat(grey[..., None], 3, axis=2)
+            if image.mode not in ('1', 'L', 'LA', 'P', 'PA', 'RGB', 'RGBA'):
+                raise ReneusError(f'{path}: photograph with {image.mode} samples; expected 8- or 16-bit '
+                                  'grey or RGB')
+            return np.asarray(image.convert('RGB'))
+    finally:
+        Image.MAX_IMAGE_PIXELS = guard
+
+
 def _cmyk(path: str) -> ReneusError:
     return ReneusError(f'{path}: a CMYK photograph (a print format); expected RGB as a camera writes it: '
                        'export it again as sRGB')

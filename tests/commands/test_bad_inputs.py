@@ -871,6 +871,13 @@ def test_capture_same_photograph_twice_is_used_once(shots, tmp_path):
                                          r'copy of IMG_0003.jpg \(a copy of IMG_0003.jpg\)'):
         files = capture_photos.list_photos(str(photos))
     assert [os.path.basename(f) for f in files] == ['IMG_0001.jpg', 'IMG_0002.JPG', 'IMG_0003.jpg']
+    # A PNG and a 16-bit TIFF of a photograph read as the photograph (Pillow, not the JPEG path).
+    whole = capture_photos.decode(capture_photos.header(str(photos / 'IMG_0001.jpg')))
+    Image.fromarray(whole).save(tmp_path / 'IMG_0001.png')
+    Image.fromarray(whole[..., 1].astype(np.uint16) * 257).save(tmp_path / 'IMG_0001.tif')
+    assert np.array_equal(capture_photos.decode(capture_photos.header(str(tmp_path / 'IMG_0001.png'))), whole)
+    assert np.array_equal(capture_photos.decode(capture_photos.header(str(tmp_path / 'IMG_0001.tif')))[..., 0],
+                          whole[..., 1])
     _inverted(0.97)(photos / 'IMG_0001.jpg')
     Image.open(photos / 'IMG_0001.jpg').load()     # what the capture trusted before
     with pytest.raises(ReneusError, match='IMG_0001.jpg: damaged photograph'):
