@@ -75,8 +75,8 @@ def run(args) -> dict[str, RunState]:
     engines.check_options(args.engine, device=args.device, workers=args.workers, threads=args.threads,
                           cpus=args.cpus_per_run, minutes=args.time, max_parallel=args.max_parallel)
     with warnings.catch_warnings():
+        # Every specimen's warning (exit_on_error prints each on one line).
         warnings.simplefilter('always')
-        warnings.showwarning = lambda message, *_, **__: print(f'warning: {message}', file=sys.stderr)
         specimens = read_collection(args.collection, preset=args.preset, settings=args.settings)
 
     def make(configs, files_of, tasks):

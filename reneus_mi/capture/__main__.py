@@ -15,10 +15,6 @@ from reneus_mi.utils import guards, interrupt
 from reneus_mi.utils.errors import exit_on_error
 
 
-def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
-    print(f'warning: {message}', file=sys.stderr)
-
-
 def _left(out: str) -> str:
     """What an interrupted capture leaves in ``out``."""
     if guards.is_dataset_dir(out):
@@ -48,8 +44,8 @@ def main(argv=None) -> int:
     interrupt.leaving(lambda: _left(args.output))
     with exit_on_error(RuntimeError, cv2.error):
         with warnings.catch_warnings():
+            # Every photograph's warning, even where two come from one line of code.
             warnings.simplefilter('always')
-            warnings.showwarning = _one_line
             photos.check_folder(args.photos)
             s = settings_mod.resolve(args, args.photos, args.settings)
             report = run(s, args.photos, args.output, crop=args.crop_to_coverage)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import time
 
@@ -149,14 +150,21 @@ def render_view(scene: mi.Scene, K: np.ndarray, c2w: np.ndarray, res: int, spp: 
     """Linear (res,res,3) float32 image of one camera, at ``spp`` samples per pixel."""
     sensor = _sensor(K, c2w, res)
     passes = max(1, -(-res * res * spp // _MAX_LANES))
-    counts = [spp // passes + (p < spp % passes) for p in range(passes)]
+    counts = [_stratified(spp // passes + (p < spp % passes)) for p in range(passes)]
     image = np.zeros((res, res, 3), np.float64)
     for p, count in enumerate(counts):
         # Every pass needs its own sample stream; seeds of different calls are
         # kept apart by the caller's stride (see make_dataset).
         img = mi.render(scene, sensor=sensor, spp=count, seed=seed + p)
-        image += np.asarray(img, np.float64) * (count / spp)
+        image += np.asarray(img, np.float64) * (count / sum(counts))
     return image.astype(np.float32)
+
+
+def _stratified(spp: int) -> int:
+    """The sample count the multijitter sampler takes for ``spp``: an x by y grid of strata,
+    x = ceil(sqrt(spp)) (it would round up to it, with a warning per view)."""
+    x = math.ceil(math.sqrt(spp))
+    return x * math.ceil(spp / x)
 
 
 def encode(linear: np.ndarray) -> np.ndarray:

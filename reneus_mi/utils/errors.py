@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+import warnings
 
 from reneus_mi.utils import interrupt
 
@@ -54,7 +55,8 @@ def one_line(text: str) -> str:
 
 @contextlib.contextmanager
 def exit_on_error(*extra: type[BaseException]):
-    """In a ``main()``: end with ``error: ...`` (one line on stderr, exit status 1).
+    """In a ``main()``: end with ``error: ...`` (one line on stderr, exit status 1); warnings on
+    the way print as ``warning: ...``, one line each.
 
     Catches library errors (``ValueError``, so :class:`ReneusError`),
     ``OSError`` (a full disk, a permission denied: ordinary failures of the
@@ -63,7 +65,9 @@ def exit_on_error(*extra: type[BaseException]):
     itself), also one that Mitsuba wrapped, ends with its one line and status 130.
     """
     try:
-        yield
+        with warnings.catch_warnings():
+            warnings.showwarning = _warning_line
+            yield
     except KeyboardInterrupt:
         _interrupted()
     except (ValueError, OSError, *extra) as e:
@@ -71,6 +75,12 @@ def exit_on_error(*extra: type[BaseException]):
             _interrupted()
         text = user_message(e) if isinstance(e, RuntimeError) else _os_text(e)
         raise SystemExit(f'error: {one_line(text)}') from None
+
+
+def _warning_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as a command prints it: ``warning: ...`` on one line of stderr, as errors are
+    (not Python's form, with the source file and line that raised it)."""
+    print(f'warning: {one_line(message)}', file=sys.stderr)
 
 
 def _interrupted():
