@@ -37,7 +37,7 @@ from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_imag
                                    resize, write_image)
 from reneus_mi.data.undistort import DISTORTION_KEYS, distortion, undistort
 from reneus_mi.utils.errors import ReneusError
-from reneus_mi.utils.io import atomic_write_text
+from reneus_mi.utils.io import atomic_write_text, load_json
 
 #: Metadata file names, in order of preference.
 TRANSFORMS_FILES = ('transforms.json', 'transforms_train.json')
@@ -120,12 +120,8 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
     :func:`~reneus_mi.data.images.check_images_fit`).
     """
     root = os.path.dirname(os.path.abspath(path))
-    try:
-        with open(path) as f:
-            meta = json.load(f)
-    except (OSError, json.JSONDecodeError) as err:
-        raise ReneusError(f"{path}: unreadable JSON ({err})") from None
-    frames = meta.get('frames') if isinstance(meta, dict) else None
+    meta = load_json(path, 'transforms file')
+    frames = meta.get('frames')
     if not isinstance(frames, list) or not frames:
         raise ReneusError(f"{path}: expected a non-empty list 'frames'")
     top = {k: meta[k] for k in _INTRINSIC_KEYS if k in meta}

@@ -36,7 +36,7 @@ from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
 from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_image, read_mask, reduced_size,
                                    resize, write_image)
 from reneus_mi.utils.errors import ReneusError
-from reneus_mi.utils.io import atomic_savez, atomic_write_text
+from reneus_mi.utils.io import atomic_savez, atomic_write_text, load_json
 
 CAMERAS_FILE = 'cameras_sphere.npz'
 META_FILE = 'reneus.json'
@@ -121,13 +121,7 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
     meta_path = os.path.join(root, META_FILE)
     meta = {}
     if os.path.isfile(meta_path):
-        try:
-            with open(meta_path) as f:
-                meta = json.load(f)
-        except (OSError, json.JSONDecodeError) as err:
-            raise ReneusError(f"{meta_path}: unreadable JSON ({err})") from None
-        if not isinstance(meta, dict):
-            raise ReneusError(f"{meta_path}: expected a JSON object")
+        meta = load_json(meta_path, 'NeuS meta file')
     extras = read_extras(meta, root, meta_path)
     if scale_mat is not None:
         extras['scale_mat'] = scale_mat

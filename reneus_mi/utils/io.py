@@ -147,10 +147,11 @@ def is_temporary(name: str) -> bool:
 
 
 def load_json(path: str | os.PathLike, what: str = 'file') -> dict:
-    """A JSON object from ``path``, or one line naming the file and the fault."""
+    """A JSON object from ``path`` (UTF-8, with or without the byte-order mark that Windows
+    editors write), or one line naming the file and the fault."""
     path = os.fspath(path)
     try:
-        with open(path) as f:
+        with open(path, encoding='utf-8-sig') as f:
             data = json.load(f)
     except OSError as e:
         raise ReneusError(f'{path}: cannot read the {what} ({e.strerror})') from None

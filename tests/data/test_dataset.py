@@ -196,8 +196,11 @@ def test_blender_errors(written, tmp_path):
     with pytest.raises(ValueError, match="expected intrinsics 'camera_angle_x' or 'fl_x'"):
         load_dataset(str(folder))
     meta_path.write_text('{"frames": [')
-    with pytest.raises(ValueError, match="transforms.json: unreadable JSON"):
+    with pytest.raises(ValueError, match="transforms.json: transforms file is not valid JSON"):
         load_dataset(str(folder))
+    # Saved by a Windows editor, with a byte-order mark: read as it is.
+    meta_path.write_bytes(b'\xef\xbb\xbf' + original.encode())
+    assert len(load_dataset(str(folder))) == len(json.loads(original)['frames'])
     meta_path.write_text(original)
 
     write_image(str(folder / 'images' / 'v2.png'), np.zeros((H + 1, W, 3)))
