@@ -32,14 +32,16 @@ def main(argv=None) -> int:
     with exit_on_error(RuntimeError):
         # The archive is checked first: no file the command did not make is ever replaced.
         archive = (guards.check_output_file(os.path.abspath(args.output) + '.zip', inputs=[args.run],
-                                            what='package archive') if args.zip else None)
+                                            what='package archive', overwrite_flag=None) if args.zip else None)
         if os.path.isfile(RunFolder(args.run).result) or not os.path.isdir(args.run):
             export_run(args.run, args.output, identifiers=identifiers, creator=args.creator,
                        watertight=args.watertight)
             packages = [args.output]
         else:
-            packages = export_batch(args.run, args.output, identifiers=identifiers, creator=args.creator,
-                                    watertight=args.watertight)
+            packages, left_out = export_batch(args.run, args.output, identifiers=identifiers,
+                                              creator=args.creator, watertight=args.watertight)
+            for specimen, state in left_out.items():
+                print(f'warning: {specimen}: left out: its run is {state}', file=sys.stderr)
         if archive:
             packages.append(shutil.make_archive(archive[:-len('.zip')], 'zip', args.output))
     print(f"wrote {', '.join(packages) or 'nothing (no finished specimen)'}")

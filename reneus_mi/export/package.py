@@ -47,6 +47,11 @@ from reneus_mi.utils.io import atomic_export, atomic_write_text, read_json
 
 #: Darwin Core identifiers a package carries (command-line options and manifest columns).
 IDENTIFIERS = ('catalogNumber', 'occurrenceID', 'institutionCode')
+#: Longest identifier taken: a catalogue number names the package's files, and file systems
+#: take 255 bytes a name (a URI occurrenceID runs to a few dozen characters).
+MAX_IDENTIFIER = 200
+#: What a spreadsheet reads as the start of a formula in a cell of record.csv.
+FORMULA_START = ('=', '+', '-', '@', '\t', '\r')
 #: Audubon Core's description of how the model was made.
 CREATION_TECHNIQUE = ('3D surface reconstructed from photographs taken through the transparent container '
                       'that holds the specimen (ReNeuS, CVPR 2023: refraction and reflection at the '
@@ -69,8 +74,8 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
         why = 'no result.json' if result is None else f"it failed ({result['failure']})"
         raise ReneusError(f'{run}: not a finished run ({why}); expected the folder of a run that ended with its '
                           'mesh')
+    identifiers = check_identifiers(identifiers or {})
     out = guards.check_output_dir(out, inputs=[run], what='package folder')
-    identifiers = {k: v for k, v in (identifiers or {}).items() if v}
     name = _file_name(identifiers.get('catalogNumber') or os.path.basename(os.path.abspath(run)))
     os.makedirs(out, exist_ok=True)
     mesh = load_mesh(folder.mesh)
@@ -96,6 +101,9 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
         'files': files,
         'mesh': {'units': units or 'the dataset\'s (it states none)', 'frame': result.get('frame'),
                  'extent': np.asarray(mesh.extents).round(4).tolist() if len(mesh.faces) else None,
+                 # The specimen's length, width and height (its smallest enclosing box, any turn).
+                 'size': (np.sort(mesh.bounding_box_oriented.primitive.extents)[::-1].round(4).tolist()
+                          if len(mesh.faces) else None),
                  'vertices': len(mesh.vertices), 'faces': len(mesh.faces), 'pieces': components(mesh),
                  'watertight': bool(mesh.is_watertight), **({'watertight_variant': closed} if closed else {})},
         'paradata': {
@@ -112,6 +120,35 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
     write_page(os.path.join(out, f'{name}.html'), metadata, os.path.join(out, f'{name}.ply'),
                os.path.join(out, files['web_mesh']) if 'web_mesh' in files else None, _dataset(config.get('data')))
     return metadata
+
+
+def check_identifiers(identifiers: dict, where: str = '') -> dict:
+    """The identifiers given (empty ones left out), each refused by name where it holds a
+    control character (a line break would split record.csv's row) or is longer than
+    :data:`MAX_IDENTIFIER`."""
+    out = {}
+    for term, value in identifiers.items():
+        if value is None or value == '':
+            continue
+        value = str(value)
+        bad = [c for c in value if ord(c) < 32 or ord(c) == 127]
+        if bad:
+            raise ReneusError(f'{where}{term}={value!r}: holds the control character {bad[0]!r}; expected one '
+                              'line of printable text')
+        if len(value) > MAX_IDENTIFIER:
+            raise ReneusError(f'{where}{term}: {len(value)} characters; expected at most {MAX_IDENTIFIER}')
+        out[term] = value
+    return out
+
+
+def _cell(value):
+    """A value as record.csv holds it: text that a spreadsheet would take for a formula is
+    quoted with a leading apostrophe, as spreadsheets themselves do (numbers are numbers)."""
+    if value is None:
+        return ''
+    if isinstance(value, str) and value.startswith(FORMULA_START):
+        return "'" + value
+    return value
 
 
 def _dataset(data: str | None):
@@ -195,9 +232,13 @@ def _container(data: str | None, result: dict) -> dict | None:
     report = read_json(os.path.join(data, 'report.json')) or {}
     given = report.get('container', {})
     refined = result.get('refined') or {}
+    # A jar's liquid: the capture's report says it; any dataset states it as its innermost interface.
+    interfaces = meta.get('containers') or []
+    inner = interfaces[-1].get('int_ior') if len(interfaces) > 1 and isinstance(interfaces[-1], dict) else None
+    liquid = given.get('liquid_ior') or (inner if isinstance(inner, (int, float)) and inner > 1.0 else None)
     return {'shape': given.get('shape'), 'size_mm': given.get('size_mm'), 'wall_mm': given.get('wall_mm'),
             'pose': given.get('pose'), 'ior_given': meta.get('IOR'), 'ior_refined': refined.get('container.eta'),
-            'liquid_ior_given': given.get('liquid_ior'), 'liquid_ior_refined': refined.get('container.inner_ior'),
+            'liquid_ior_given': liquid, 'liquid_ior_refined': refined.get('container.inner_ior'),
             'absorption_given': meta.get('absorption'), 'absorption_refined': refined.get('container.sigma_a')}
 
 
@@ -227,27 +268,40 @@ def _record(metadata: dict, name: str) -> str:
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=RECORD_COLUMNS, lineterminator='\n')
     writer.writeheader()
-    writer.writerow({k: ('' if v is None else v) for k, v in row.items()})
+    writer.writerow({k: _cell(v) for k, v in row.items()})
     return text.getvalue()
 
 
-def export_batch(runs_dir: str, out: str, **options) -> list[str]:
+def export_batch(runs_dir: str, out: str, **options) -> tuple[list[str], dict[str, str]]:
     """Every finished specimen of a batch folder into ``out/NAME``, with the identifiers its
-    manifest row gave; returns the packages written."""
+    manifest row gave; returns the packages written and the specimens left out, with why."""
     batch = BatchFolder(runs_dir)
     specimens = read_json(batch.collection)
     if specimens is None:
         raise ReneusError(f'{runs_dir}: not a run folder (no result.json) nor a batch folder (no '
                           f'{os.path.relpath(batch.collection, runs_dir)}); expected one of them')
-    out = guards.check_output_dir(out, inputs=[runs_dir], what='packages folder')
-    given = {k: v for k, v in options.pop('identifiers', {}).items() if v}
-    written = []
+    given = check_identifiers(options.pop('identifiers', {}))
+    # Which specimens go, each checked, before anything is written.
+    chosen, left_out = [], {}
     for s in specimens:
-        run = batch.run(s['name'])
-        if run.state().name != 'finished':
+        state = batch.run(s['name']).state()
+        if state.name != 'finished':
+            left_out[s['name']] = str(state)
             continue
-        identifiers = {**s.get('identifiers', {}), **given}
-        name = _file_name(identifiers.get('catalogNumber') or s['name'])
-        export_run(run.path, os.path.join(out, name), identifiers=identifiers, **options)
+        identifiers = {**check_identifiers(s.get('identifiers', {}), f"{s['name']}: "), **given}
+        chosen.append((s['name'], identifiers, _file_name(identifiers.get('catalogNumber') or s['name'])))
+    if len(chosen) > 1 and given.get('catalogNumber'):
+        raise ReneusError(f"--catalogNumber {given['catalogNumber']!r} for {len(chosen)} specimens "
+                          f"({', '.join(n for n, _, _ in chosen)}); expected one catalogue number each: give "
+                          "them in the manifest's catalogNumber column")
+    names = [name for _, _, name in chosen]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ReneusError(f"{', '.join(twice)}: the package name of more than one specimen; expected a "
+                          'catalogue number (or a name) each')
+    out = guards.check_output_dir(out, inputs=[runs_dir], what='packages folder')
+    written = []
+    for specimen, identifiers, name in chosen:
+        export_run(batch.run(specimen).path, os.path.join(out, name), identifiers=identifiers, **options)
         written.append(os.path.join(out, name))
-    return written
+    return written, left_out

@@ -71,13 +71,15 @@ def _check_not_input(path: str, what: str, inputs) -> None:
 
 
 def check_output_file(path: str | os.PathLike, *, inputs=(), overwrite: bool = False,
-                      what: str = 'output', extensions: tuple[str, ...] = ()) -> str:
+                      what: str = 'output', extensions: tuple[str, ...] = (),
+                      overwrite_flag: str | None = '--overwrite') -> str:
     """Check that the file ``path`` may be written; return its absolute path.
 
     Refused: an extension not in ``extensions`` (when given), a path that is
     one of ``inputs`` (files or folders) or lies in one, a path inside a dataset
-    folder, an existing file unless ``overwrite``, an existing folder, and a
-    place that is not writable.
+    folder, an existing file unless ``overwrite`` (the message names the command's
+    ``overwrite_flag``; None: it has none), an existing folder, and a place that is not
+    writable.
     """
     real = _real(path)
     _check_not_input(real, what, inputs)
@@ -86,8 +88,8 @@ def check_output_file(path: str | os.PathLike, *, inputs=(), overwrite: bool = F
     if os.path.isdir(real):
         raise ReneusError(f'{what} {path}: is a folder, expected a file name')
     if os.path.exists(real) and not overwrite:
-        raise ReneusError(f'{what} {path}: exists; expected a new file name '
-                          '(or --overwrite to replace it)')
+        replace = f'or {overwrite_flag} to replace it' if overwrite_flag else 'or move that file away first'
+        raise ReneusError(f'{what} {path}: exists; expected a new file name ({replace})')
     _check_writable(real, what)
     return real
 

@@ -50,6 +50,9 @@ def test_package_of_a_run(finished, tmp_path):
     assert metadata['dwc'] == IDS and metadata['ac']['dc:creator'] == 'A. Curator'
     assert metadata['ac']['dcterms:format'] == 'model/gltf-binary'
     np.testing.assert_allclose(metadata['mesh']['extent'], theirs.extents, atol=1e-4)
+    # Length, width, height: at least the extent along the longest axis, sorted.
+    size = metadata['mesh']['size']
+    assert size == sorted(size, reverse=True) and size[0] >= max(theirs.extents) - 1e-4
     with open(finished / 'config.json') as f:
         assert metadata['paradata']['configuration'] == json.load(f)
     training = metadata['paradata']['training']
@@ -93,9 +96,59 @@ def test_command_line_zip_and_batch_identifiers(finished, tmp_path):
 def test_zip_never_replaces_a_file(finished, tmp_path):
     """PACKAGE.zip that the command did not make is refused before anything is written."""
     (tmp_path / 'package.zip').write_text('mine')
-    with pytest.raises(SystemExit, match='package archive .*package.zip: exists'):
+    with pytest.raises(SystemExit, match='package archive .*package.zip: exists') as refusal:
         export_command.main([str(finished), '-o', str(tmp_path / 'package'), '--zip'])
+    # export has no --overwrite: the message does not send anyone to it.
+    assert '--overwrite' not in str(refusal.value) and 'move that file away' in str(refusal.value)
     assert (tmp_path / 'package.zip').read_text() == 'mine' and not (tmp_path / 'package').exists()
+
+
+@pytest.mark.parametrize('value, parts', [
+    ('NHM\n2026/17', ['catalogNumber=', "control character '\\n'", 'one line']),
+    ('N' * 300, ['catalogNumber: 300 characters', f'at most {export.MAX_IDENTIFIER}']),
+], ids=['newline', 'too_long'])
+def test_identifiers_refused_before_anything_is_written(finished, tmp_path, value, parts):
+    with pytest.raises(SystemExit) as refusal:
+        export_command.main([str(finished), '-o', str(tmp_path / 'package'), '--catalogNumber', value])
+    for part in parts:
+        assert part in str(refusal.value), str(refusal.value)
+    assert not (tmp_path / 'package').exists()
+
+
+def test_record_cell_that_a_spreadsheet_would_run_is_quoted(finished, tmp_path):
+    """A catalogue number starting with '=' (or +, -, @) reaches a spreadsheet as text."""
+    export.export_run(str(finished), str(tmp_path / 'package'), identifiers={'catalogNumber': '=HYPERLINK("x")',
+                                                                            'institutionCode': 'NHM'})
+    with open(tmp_path / 'package' / 'record.csv', newline='') as f:
+        (row,) = list(csv.DictReader(f))
+    assert row['catalogNumber'] == "'=HYPERLINK(\"x\")" and row['institutionCode'] == 'NHM'
+    assert float(row['extent_x']) > 0       # numbers stay numbers
+
+
+def test_batch_refuses_one_catalogue_number_for_several_and_names_what_it_leaves_out(finished, tmp_path,
+                                                                                       capsys):
+    runs = tmp_path / 'runs'
+    shutil.copytree(finished, runs / 'beetle')
+    shutil.copytree(finished, runs / 'wasp')
+    (runs / '_batch').mkdir()
+    (runs / '_batch' / 'collection.json').write_text(json.dumps([
+        {'name': n, 'data': str(finished), 'identifiers': {}} for n in ('beetle', 'wasp', 'fly')]))
+    with pytest.raises(SystemExit, match=r"--catalogNumber 'B-1' for 2 specimens \(beetle, wasp\)"):
+        export_command.main([str(runs), '-o', str(tmp_path / 'packages'), '--catalogNumber', 'B-1'])
+    assert not (tmp_path / 'packages').exists()
+    assert export_command.main([str(runs), '-o', str(tmp_path / 'packages')]) == 0
+    assert sorted(os.listdir(tmp_path / 'packages')) == ['beetle', 'wasp']
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith('warning: ')]
+    assert warnings == ['warning: fly: left out: its run is new'], warnings
+
+
+def test_liquid_ior_from_the_datasets_interfaces(tmp_path):
+    """A jar stated as interfaces (no capture report): the liquid's IOR is the innermost one's."""
+    (tmp_path / 'transforms.json').write_text(json.dumps({'IOR': 1.5, 'containers': [
+        {'mesh': 'glass.ply', 'int_ior': 1.5, 'ext_ior': 1.0},
+        {'mesh': 'liquid.ply', 'int_ior': 1.36, 'ext_ior': 1.5}]}))
+    container = export._container(str(tmp_path), {'refined': {'container.inner_ior': 1.355}})
+    assert container['liquid_ior_given'] == 1.36 and container['liquid_ior_refined'] == 1.355
 
 
 def test_unfinished_run_refused(finished, tmp_path):
