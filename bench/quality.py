@@ -51,10 +51,11 @@ and the training PSNR's curve from ``RUN/log.jsonl``: its mean over 100 steps, t
 below its best so far; ``DOC/quality/NAME_capture_PRESET_Mmin_psnr.png`` plots the PSNR per
 step and its mean. Their pictures look down on the board (its z points into the table).
 
-``--set PATH=VALUE`` (repeatable) passes a setting over the preset to the scene command: an
-ablation, a row of its own beside the preset's (its files and its key carry the settings), e.g.
-the model before the capture fixes, ``--set model.render.terminal=ambient --set
-model.render.board_texels=0``.
+``--set PATH=VALUE`` (repeatable) passes a setting over the preset to the scene command (a
+``train.`` setting to optimize): an ablation, a row of its own beside the preset's (its files
+and its key carry the settings), e.g. the model before the capture fixes, ``--set
+model.render.terminal=ambient --set model.render.board_texels=0``, or the batches before the
+thin-part fixes, ``--set train.pixels.jitter=false --set train.pixels.error_share=0``.
 """
 from __future__ import annotations
 
@@ -97,6 +98,7 @@ PSNR_WINDOW, PSNR_DROP = 100, 1.0
 PLOT = (4.8, 2.4)
 #: What a row keeps in DOC/quality.json (the run folder is this machine's, not kept).
 RECORDED = ('scene', 'variant', 'preset', 'settings', 'minutes', 'chamfer', 'chamfer_mm', 'fscore', 'threshold',
+            'at', 'extent_error', 'limbs', 'footprint_mm',
             'postprocess', 'components', 'steps', 'train_s', 'psnr', 'psnr_best', 'psnr_best_step', 'psnr_end',
             'psnr_below_1db', 'photos', 'wall_s', 'others', 'status', 'reused', 'remeshed', 'picture',
             'psnr_plot', 'date', 'commit', 'machine')
@@ -197,12 +199,15 @@ def count_components(mesh_path: str) -> int:
 
 def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str, minutes: float,
             fresh: bool, postprocess: str | None, remesh: bool = False, make_data: list[str] | None = None,
-            evaluate_args: tuple[str, ...] = (), settings: tuple[str, ...] = ()) -> dict:
+            evaluate_args: tuple[str, ...] = (), settings: tuple[str, ...] = (),
+            footprint_mm: float | None = None) -> dict:
     """One row: scene file, run, evaluation (or the reason there is none). ``make_data``: the
     command that writes the dataset ``data`` (a capture's), run first where ``data`` holds no
     ``transforms.json``; ``evaluate_args``: more options of evaluate's; ``settings``: the scene
     command's ``--set PATH=VALUE`` over the preset (an ablation)."""
     row = {'scene': scene, 'variant': variant, 'preset': preset, 'minutes': minutes, 'settings': list(settings)}
+    if footprint_mm:
+        row['footprint_mm'] = footprint_mm
     folder = os.path.join(runs, scene, variant)
     tag = _tag(preset, minutes, settings)
     run = os.path.join(folder, tag)
@@ -237,9 +242,11 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
     xml = os.path.join(folder, f'scene_{preset}{_changed(settings)}.xml')
     py = sys.executable
     with open(os.path.join(folder, f'{tag}.log'), 'w') as log:
+        # Training settings are optimize's, the model's the scene's.
         steps = [[py, '-m', 'reneus_mi.scene', data, '-o', xml, '--preset', preset, '--overwrite',
-                  *(a for s in settings for a in ('--set', s))],
-                 [py, '-m', 'reneus_mi.optimize', xml, '-o', run, '--max-minutes', f'{minutes:g}', '--quiet'],
+                  *(a for s in settings if not s.startswith('train.') for a in ('--set', s))],
+                 [py, '-m', 'reneus_mi.optimize', xml, '-o', run, '--max-minutes', f'{minutes:g}', '--quiet',
+                  *(a for s in settings if s.startswith('train.') for a in ('--set', s))],
                  _evaluate(run, gt, evaluation, postprocess, evaluate_args)]
         timeouts = [GRACE_S, 60 * minutes + GRACE_S, GRACE_S]
         if not made:
@@ -285,7 +292,10 @@ def _read(run: str, evaluation: str | None) -> dict:
         with open(evaluation) as f:
             e = json.load(f)
         out.update(chamfer=e['chamfer'], fscore=e.get('fscore'), threshold=e.get('threshold'),
-                   postprocess=e.get('postprocess'), status='ok')
+                   postprocess=e.get('postprocess'), status='ok', at=e.get('at'),
+                   extent_error=(e.get('extents') or {}).get('error_pct'),
+                   limbs=[{k: limb[k] for k in ('name', 'length', 'reach', 'error_pct', 'longest_gap')}
+                          for limb in e.get('limbs', [])] or None)
     if os.path.isfile(mesh):
         # Not evaluate's 'components': it counts after its clean-up (one, for 'largest').
         out['components'] = count_components(mesh)
@@ -296,12 +306,39 @@ def _read(run: str, evaluation: str | None) -> dict:
 
 def capture_job(captures: str, name: str, runs: str) -> dict:
     """What run_one needs for a capture's rows: its dataset (made by ``reneus_mi.capture``
-    from the photographs), its truth and evaluate's threshold in millimetres."""
+    from the photographs), its truth and evaluate's distances in millimetres (the curator's
+    0.1 and 0.2 mm, one and two pixels' footprint at the specimen) and its limbs."""
     data = os.path.join(runs, name, CAPTURE, 'dataset')
+    truth = os.path.join(captures, name, 'truth', 'truth.json')
+    footprint = pixel_footprint(truth)
+    at = [0.1, 0.2] + ([footprint, 2 * footprint] if footprint else [])
+    limbs = ('--limbs', truth) if _truth(truth).get('limbs') else ()
     return {'data': data, 'gt': os.path.join(captures, name, 'truth', 'specimen.ply'), 'scene': name,
-            'variant': CAPTURE, 'evaluate_args': ('--threshold', f'{CAPTURE_THRESHOLD_MM:g}'),
+            'variant': CAPTURE, 'footprint_mm': footprint,
+            'evaluate_args': ('--threshold', f'{CAPTURE_THRESHOLD_MM:g}', '--at', *(f'{d:.4g}' for d in at), *limbs),
             'make_data': [sys.executable, '-m', 'reneus_mi.capture', os.path.join(captures, name, 'photos'),
                           '-o', data, '--quiet']}
+
+
+def _truth(truth: str) -> dict:
+    try:
+        with open(truth) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return {}
+
+
+def pixel_footprint(truth: str) -> float | None:
+    """Millimetres a photograph's pixel covers at the specimen: the median over the views of
+    the camera's distance to the specimen's centre over the focal length (truth.json)."""
+    t = _truth(truth)
+    try:
+        centre = np.asarray(t['limbs'][0]['joints_mm'][0], float) if t.get('limbs') else \
+            np.array([*t['container']['pose'][:2], -0.5 * t['container']['size_mm'][2]])
+        eyes = np.array([np.asarray(v['c2w'], float)[:3, 3] for v in t['views']])
+        return float(np.median(np.linalg.norm(eyes - centre, axis=1)) / t['K'][0][0])
+    except (KeyError, IndexError, TypeError, ValueError):
+        return None
 
 
 def photo_size(truth: str) -> str | None:
@@ -587,19 +624,35 @@ def _capture_lines(rows: list[dict], ran) -> list[str]:
              f"training PSNR's mean over {PSNR_WINDOW} steps: its best (at step), its end, and the share of "
              f'the run\'s steps during which it lay more than {PSNR_DROP:g} dB below its best so far. '
              'Pictures: the mesh (left) beside the truth (right), seen from above the board.', '',
-             f'| capture | photographs | preset | budget | Chamfer-L1 mm | F@{threshold} mm | pieces | steps | '
+             f'| capture | photographs | preset | budget | Chamfer-L1 mm | F@{threshold} mm | '
+             'precision / recall 0.1 mm | 0.2 mm | 1 px | 2 px | extent error % | legs, antennae reach % | '
+             f'pieces | steps | '
              f'PSNR best (step) | PSNR end | below best - {PSNR_DROP:g} dB | others | status | ran | picture | '
              'PSNR plot |',
-             '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+             '|' + ' --- |' * 22]
     for r in rows:
         best = (f"{r['psnr_best']:.2f} ({r['psnr_best_step']})" if r.get('psnr_best') is not None else '')
         lines.append(f"| {r['scene']} | {r.get('photos', '')} | {_preset(r)} | {r['minutes']:g} min | "
                      f"{_fmt(r.get('chamfer_mm'), '.3f')} | {_fmt(r.get('fscore'), '.3f')} | "
+                     f"{' | '.join(_precision_recall(r, k) for k in range(4))} | "
+                     f"{' '.join(f'{e:+.0f}' for e in r.get('extent_error') or [])} | {_limbs(r)} | "
                      f"{_fmt(r.get('components'), 'd')} | {_fmt(r.get('steps'), 'd')} | {best} | "
                      f"{_fmt(r.get('psnr_end'), '.2f')} | {_fmt(r.get('psnr_below_1db'), '.0%')} | "
                      f"{_fmt(r.get('others'), '.0%')} | {_status(r)} | {ran(r)} | {_link(r, 'picture')} | "
                      f"{_link(r, 'psnr_plot')} |")
     return lines + ['']
+
+
+def _precision_recall(row: dict, k: int) -> str:
+    """The k-th distance of a capture row's ``at`` (0.1 mm, 0.2 mm, 1 px, 2 px) as P / R."""
+    at = list((row.get('at') or {}).values())
+    return f"{at[k]['precision']:.2f} / {at[k]['recall']:.2f}" if k < len(at) else ''
+
+
+def _limbs(row: dict) -> str:
+    """Each limb's reach error in %, legs then antennae, as evaluate names them."""
+    limbs = row.get('limbs') or []
+    return ' '.join(f"{limb['error_pct']:+.0f}" for limb in sorted(limbs, key=lambda x: 'antenna' in x['name']))
 
 
 def criterion(rows: list[dict]) -> list[dict]:
@@ -726,7 +779,7 @@ def main(argv=None) -> None:
         for preset, minutes in configs:
             row = run_one(job['data'], job['gt'], args.runs, job['scene'], job['variant'], preset, minutes,
                           args.fresh, args.postprocess, args.remesh, job.get('make_data'),
-                          job.get('evaluate_args', ()), tuple(args.settings))
+                          job.get('evaluate_args', ()), tuple(args.settings), job.get('footprint_mm'))
             row.update(figures(row, job['gt'], pictures, args.doc))
             rows.append({**row, **stamp})
             chamfer = (f"Chamfer-L1 {_fmt(row.get('chamfer_mm'), '.3f') or '-'} mm" if row['variant'] == CAPTURE
