@@ -740,9 +740,9 @@ def main(argv=None) -> None:
     parser.add_argument('--configs', nargs='+', default=list(CONFIGS),
                         help='PRESET:MINUTES[,MINUTES...] (default: %(default)s)')
     parser.add_argument('--set', dest='settings', action='append', default=[], metavar='PATH=VALUE',
-                        help="a setting over every preset, passed to the scene command's --set (repeatable): "
-                             'ablation rows, kept apart from the preset\'s own, e.g. '
-                             'model.render.terminal=ambient')
+                        help="a setting over every preset, passed to the scene command's --set (a train. "
+                             "setting: to optimize's; repeatable): ablation rows, kept apart from the preset's "
+                             'own, e.g. model.render.terminal=ambient, train.pixels.error_share=0')
     parser.add_argument('--runs', default=os.path.join(ROOT, 'runs', 'quality'),
                         help='folder of the runs (default: runs/quality)')
     parser.add_argument('--doc', default=os.path.join(ROOT, 'docs'),

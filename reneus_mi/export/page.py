@@ -142,8 +142,9 @@ def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _pairs(mesh_path: str, dataset, tmp: str) -> list[tuple[str, str]]:
-    """PAIRS photographs spread over the dataset, each beside the mesh rendered by its camera,
-    both cropped to the container's projection (its mask) with a margin."""
+    """PAIRS photographs spread over the dataset, each beside the mesh rendered by its camera
+    through the container (the specimen at the same place and size), both cropped to the
+    container's projection (its mask) with a margin."""
     n = len(dataset.names)
     out = []
     for i in sorted({int(round(x)) for x in np.linspace(0, n - 1, PAIRS)}):
@@ -156,9 +157,16 @@ def _pairs(mesh_path: str, dataset, tmp: str) -> list[tuple[str, str]]:
         K_window = np.array([[K[0, 0] * scale, 0.0, (K[0, 2] - x0) * scale],
                              [0.0, K[1, 1] * scale, (K[1, 2] - y0) * scale], [0.0, 0.0, 1.0]])
         render = os.path.join(tmp, f'view_{i}.png')
-        render_view(mesh_path, render, K_window, dataset.c2w[i], size, spp=SPP)
+        render_view(mesh_path, render, K_window, dataset.c2w[i], size, spp=SPP, through=_interfaces(dataset))
         out += [(_image_uri(photo), f'{dataset.names[i]}: photograph'), (_image_uri(render), f'{dataset.names[i]}: model')]
     return out
+
+
+def _interfaces(dataset) -> list[tuple[str, float]]:
+    """The dataset's container as (mesh file, IOR inside), outermost first (none: no container)."""
+    if dataset.container is None:
+        return []
+    return [(dataset.container, dataset.ior)] + [(layer.mesh, layer.ior) for layer in dataset.inner]
 
 
 def _window(mask: np.ndarray, margin: float = 0.15) -> tuple[int, int, int, int]:
