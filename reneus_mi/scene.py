@@ -18,6 +18,7 @@ from reneus_mi.config import with_settings
 from reneus_mi.data import load_dataset
 from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.fields.hashgrid import HashGridFieldConfig
+from reneus_mi.geometry.container import check_container_files
 from reneus_mi.presets import preset
 from reneus_mi.render.properties import xml_properties
 from reneus_mi.utils import guards
@@ -103,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
                           + (' and renders plain NeuS (mode neus)' if args.integrator == 'reneus' else ''))
             if args.integrator == 'reneus':
                 settings['mode'] = 'neus'
+        if ds.container is not None:
+            check_container_files([(ds.container, ds.ior)] + [(i.mesh, i.ior) for i in ds.inner], args.data_dir)
         if args.integrator == 'reneus':
             settings.update(footprint_settings(cfg.model.field, ds, changes))
         write_scene(ds, args.output, integrator=args.integrator, board=args.board == 'scene',

@@ -149,6 +149,9 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     size = shots[0].size
     width, height, scale = output_size(*size, max_size=s.max_size, downscale=s.downscale)
     photos.check_memory(len(shots), size, (width, height), kept=(width, height), workers=WORKERS)
+    # The longest stage, and the progress bars show only on a terminal: say what it does.
+    print(f'reading {len(shots)} photographs of {size[0]}x{size[1]} ({size[0] * size[1] / 1e6:.0f} MP) and '
+          f'finding the board in them, {WORKERS} at a time', flush=True)
     detections, reduced = read_all(board, shots, (width, height))
     left_out = {p.name: NO_CORNERS for p in shots if p.name not in detections}
     cal = calibrate(board, detections, size)

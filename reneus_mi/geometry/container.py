@@ -315,7 +315,7 @@ def check_scene_containers(scene: mi.Scene, where: str) -> None:
     ``flip_normals`` (and after Mitsuba merged shapes that share a BSDF): the
     check catches what the XML points to, whatever file the dataset names.
     """
-    parts, etas = [], []
+    parts, etas, names = [], [], []
     for shape in scene.shapes():
         if not isinstance(shape, mi.Mesh) or not str(shape.bsdf()).startswith('SmoothDielectric'):
             continue
@@ -330,20 +330,47 @@ def check_scene_containers(scene: mi.Scene, where: str) -> None:
         split = merged.split(only_watertight=False)
         parts += split
         etas += [round(float(mi.traverse(shape.bsdf())['eta']), 6)] * len(split)
-    _check_disjoint(parts, where, etas)
+        name = f"shape '{shape.id() or 'container'}'"
+        names += [name + (f' (its surface {k + 1} of {len(split)})' if len(split) > 1 else '') for k in range(len(split))]
+    _check_disjoint(parts, where, etas, names)
 
 
-def _check_disjoint(parts, where: str, etas=None) -> None:
+def check_container_files(files: list[tuple[str, float]], where: str) -> None:
+    """A dataset's container as its files state it, outermost first, as (mesh file, IOR
+    inside): each closed, its surfaces and the files' apart or nested as interfaces of their
+    own, never cut through each other; a hollow vessel in one file (an outer surface around a
+    cavity) refused with the advice to state the two as entries of their own, which is what
+    the integrator reads. What the scene command can see before it writes a scene."""
+    parts, etas, names = [], [], []
+    for path, ior in files:
+        mesh = load_container(path)
+        merged = mesh.copy()
+        merged.merge_vertices()
+        split = merged.split(only_watertight=False)
+        if len(split) > 1 and any(signed_volume(p.vertices, p.faces) < 0 for p in split):
+            raise ReneusError(f'{where}: {path}: a hollow vessel in one mesh (an outer surface around a '
+                              f'cavity, {len(split)} surfaces); expected its outer surface and its cavity as '
+                              "entries of their own in 'containers', each facing out of the space it holds, "
+                              'the cavity with the IOR of what fills it (docs/containers.md)')
+        parts += split
+        etas += [round(float(ior), 6)] * len(split)
+        names += [path + (f' (its surface {k + 1} of {len(split)})' if len(split) > 1 else '')
+                  for k in range(len(split))]
+    _check_disjoint(parts, where, etas, names)
+
+
+def _check_disjoint(parts, where: str, etas=None, names=None) -> None:
     """Container parts may sit apart or one inside another as its cavity (inward normals:
     a hollow vessel) or as an interface of its own (another dielectric, outward normals),
     never cut through each other or nest glass in the same glass, where a ray would enter
     glass it is already in."""
     etas = etas or [None] * len(parts)
+    names = names or [f'part {k + 1}' for k in range(len(parts))]
     for i, a in enumerate(parts):
         for j, b in enumerate(parts[i + 1:], i + 1):
             if not (np.all(a.bounds[0] <= b.bounds[1]) and np.all(b.bounds[0] <= a.bounds[1])):
                 continue
-            for inner, outer in ((a, b), (b, a)):
+            for (inner, name_in), (outer, name_out) in (((a, names[i]), (b, names[j])), ((b, names[j]), (a, names[i]))):
                 if signed_volume(outer.vertices, outer.faces) < 0:
                     outer = outer.copy()   # parity is blind to orientation; inside() is not
                     outer.invert()
@@ -352,9 +379,10 @@ def _check_disjoint(parts, where: str, etas=None) -> None:
                 nested = etas[i] != etas[j] and not cavity
                 if within.any() and not (within.all() and (cavity or nested)):
                     c = np.round(0.5 * (inner.bounds[0] + inner.bounds[1]), 3).tolist()
-                    raise ReneusError(f'{where}: container parts overlap (the part centred at {c} '
-                                      'reaches into another); expected disjoint parts, or a cavity '
-                                      'with inward normals inside its part')
+                    same = ' (the same file twice?)' if np.allclose(inner.bounds, outer.bounds) else ''
+                    raise ReneusError(f'{where}: container parts overlap: {name_in} (centred at {c}) reaches '
+                                      f'into {name_out}{same}; expected disjoint parts, or a cavity with '
+                                      'inward normals inside its part')
 
 
 def _probes(mesh) -> np.ndarray:

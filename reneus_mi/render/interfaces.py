@@ -156,7 +156,10 @@ def _points_on(scene: mi.Scene, name: str) -> np.ndarray:
                           'without crossing it; expected a closed surface around the space it holds')
     if not np.all(np.array(dr.dot(rays, si.n)) > 0.0):
         raise ReneusError(f'reneus integrator: interface {name} has normals that point into the space it '
-                          'holds; expected them out of it (flip its faces), as dielectric reads int_ior inside')
+                          'holds; expected them out of it (flip its faces), as dielectric reads int_ior inside; '
+                          'a hollow vessel (glass around a cavity) in one mesh is two interfaces: state its outer '
+                          'surface and its cavity as two entries, each facing out of the space it holds '
+                          '(docs/containers.md)')
     t = np.array(si.t, np.float64)
     return c + d * (t - 1e-4 * size)[:, None]
 

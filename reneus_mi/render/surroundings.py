@@ -389,7 +389,11 @@ class Surroundings:
         if refine.ior:
             groups.append(ParamGroup('ior', ('container.eta',), refine.ior_learning_rate, refine.after,
                                      tuple(refine.ior_range)))
-        if refine.inner_ior and self.inner_ior is not None:
+        if refine.inner_ior and self.inner_ior is None:
+            raise ReneusError('train.refine.inner_ior (--refine-inner-ior): the container has no inner '
+                              "interface (a case's inner faces, a jar's liquid) whose IOR could be refined; "
+                              'expected a container stated as nested interfaces (docs/containers.md)')
+        if refine.inner_ior:
             groups.append(ParamGroup('inner_ior', ('container.inner_ior',), refine.ior_learning_rate, refine.after,
                                      (1.0, refine.ior_range[1])))
         if refine.absorption:

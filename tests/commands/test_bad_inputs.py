@@ -208,7 +208,8 @@ def test_optimize_missing_scene(tmp_path):
     (['--refine-ior-range', '2', '1.2'], ('ior_range=[2.0, 1.2]', 'expected 1 < low < high')),
     (['--sample-budget', '-5'], ('sample_budget=-5',)),
     (['--refine-pose', '--set', 'model.render.mode=neus'], ('train.refine', 'needs a container', 'mode is neus')),
-], ids=['light_model', 'ior_range', 'sample_budget', 'neus'])
+    (['--refine-inner-ior'], ('--refine-inner-ior', 'the container has no inner interface')),
+], ids=['light_model', 'ior_range', 'sample_budget', 'neus', 'inner_ior_of_a_block'])
 def test_optimize_refinement_switches(world, tmp_path, args, expected):
     refused(optimize.main, [world['scene'], '-o', tmp_path / 'out', *TRAIN, *args], *expected,
             watch=[tmp_path])
@@ -1305,7 +1306,37 @@ def test_scene_with_overlapping_container_parts(world, tmp_path):
         '</shape>', '<transform name="to_world"><translate x="0.1" y="0.1" z="0.1"/></transform></shape>')
     xml.write_text(text[:end] + moved + text[end:])
     refused(render.main, [xml, '-o', tmp_path / 'r.png'],
-            'container parts overlap', watch=[tmp_path])
+            'container parts overlap', "shape 'container' (its surface 1 of 2)",
+            "reaches into shape 'container' (its surface 2 of 2)", watch=[tmp_path])    # Mitsuba merged the two
+
+
+def _hollow(path):
+    """The container file as a hollow vessel in one mesh: its surface around a cavity half its size."""
+    outer = trimesh.load(path, process=False)
+    cavity = outer.copy()
+    cavity.apply_scale(0.5)
+    cavity.apply_translation(outer.centroid - cavity.centroid)
+    cavity.invert()
+    trimesh.util.concatenate([outer, cavity]).export(path)
+
+
+@pytest.mark.parametrize('spoil, parts', [
+    ('same_file_twice', ['container parts overlap', 'reaches into', 'the same file twice']),
+    ('hollow_in_one_mesh', ['a hollow vessel in one mesh', "entries of their own in 'containers'",
+                            'docs/containers.md']),
+], ids=['same_file_twice', 'hollow_in_one_mesh'])
+def test_scene_checks_the_containers_it_can_see(data, tmp_path, spoil, parts):
+    """Before it writes a scene, the scene command refuses containers that optimize would:
+    each file and entry named."""
+    meta = json.loads((data / 'transforms.json').read_text())
+    if spoil == 'same_file_twice':
+        edit_frames(data, lambda m: m.update(containers=[
+            {'mesh': m['mesh_outside'], 'int_ior': m['IOR'], 'ext_ior': 1.0},
+            {'mesh': m['mesh_outside'], 'int_ior': 1.0, 'ext_ior': m['IOR']}]))
+    else:
+        _hollow(data / meta['mesh_outside'])
+    refused(scene.main, [data, '-o', tmp_path / 'scene.xml', '--preset', 'tiny'], *parts,
+            str(data / meta['mesh_outside']), watch=[data, tmp_path])
 
 
 def test_optimize_help_states_each_default_once(capsys):

@@ -40,6 +40,10 @@ def test_container_parts_apart_or_hollow_pass_overlapping_fail():
         _check_disjoint([outer, trimesh.creation.box()], 'scene.xml')    # glass in glass
     with pytest.raises(ValueError, match='container parts overlap'):
         _check_disjoint([outer, trimesh.creation.box().apply_translation((0.8, 0.8, 0.8))], 's')
+    # Named by the scene's shapes, not by a centre that two parts share; the same file twice said.
+    with pytest.raises(ValueError, match=r"shape 'case' \(centred at \[0.0, 0.0, 0.0\]\) reaches into shape "
+                                         r"'case_copy' \(the same file twice\?\)"):
+        _check_disjoint([outer, outer.copy()], 's', names=["shape 'case'", "shape 'case_copy'"])
     # An interface of its own inside the glass (a case's air, a jar's liquid: another dielectric).
     _check_disjoint([outer, trimesh.creation.box()], 'scene.xml', etas=[1.5, 1 / 1.5])
     with pytest.raises(ValueError, match='container parts overlap'):
