@@ -16,6 +16,7 @@ Layout of ``PACKAGE`` (``--zip``: also ``PACKAGE.zip``)::
                           calibration's figures, the training's, the software and the whole
                           configuration (docs/export.md)
     record.csv            one header and one row: what a collection database imports
+    manifest-sha256.txt   every other file's SHA-256 (BagIt's manifest): fixity
 
 NAME is the catalogue number when there is one, else the run folder's name. The
 identifiers come from the command line or, for a batch folder (every finished specimen
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import csv
 import datetime
+import hashlib
 import io
 import json
 import os
@@ -50,6 +52,8 @@ IDENTIFIERS = ('catalogNumber', 'occurrenceID', 'institutionCode')
 #: Longest identifier taken: a catalogue number names the package's files, and file systems
 #: take 255 bytes a name (a URI occurrenceID runs to a few dozen characters).
 MAX_IDENTIFIER = 200
+#: The package's fixity: each file's SHA-256 (BagIt's manifest format).
+FIXITY = 'manifest-sha256.txt'
 #: What a spreadsheet reads as the start of a formula in a cell of record.csv.
 FORMULA_START = ('=', '+', '-', '@', '\t', '\r')
 #: Audubon Core's description of how the model was made.
@@ -119,7 +123,20 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
     atomic_write_text(os.path.join(out, 'record.csv'), _record(metadata, name))
     write_page(os.path.join(out, f'{name}.html'), metadata, os.path.join(out, f'{name}.ply'),
                os.path.join(out, files['web_mesh']) if 'web_mesh' in files else None, _dataset(config.get('data')))
+    atomic_write_text(os.path.join(out, FIXITY), _fixity(out))
     return metadata
+
+
+def _fixity(folder: str) -> str:
+    """Every file of the package with its SHA-256, as BagIt's manifest lists them (DIGEST, two
+    spaces, PATH): what a repository checks a copy against, years on."""
+    lines = []
+    for name in sorted(os.listdir(folder)):
+        path = os.path.join(folder, name)
+        if name != FIXITY and os.path.isfile(path):
+            with open(path, 'rb') as f:
+                lines.append(f'{hashlib.file_digest(f, "sha256").hexdigest()}  {name}')
+    return ''.join(line + '\n' for line in lines)
 
 
 def check_identifiers(identifiers: dict, where: str = '') -> dict:

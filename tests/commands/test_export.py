@@ -38,7 +38,11 @@ def test_package_of_a_run(finished, tmp_path):
     metadata = export.export_run(str(finished), str(out), identifiers=IDS, creator='A. Curator')
     name = 'NHM_2026_17'
     assert sorted(os.listdir(out)) == sorted([f'{name}.ply', f'{name}.glb', f'{name}.html', 'metadata.json',
-                                              'record.csv'])
+                                              'record.csv', 'manifest-sha256.txt'])
+    # Fixity: every other file with its SHA-256, as `sha256sum -c` reads it.
+    fixity = dict(line.split('  ')[::-1] for line in (out / 'manifest-sha256.txt').read_text().splitlines())
+    assert sorted(fixity) == sorted(set(os.listdir(out)) - {'manifest-sha256.txt'})
+    assert subprocess.run(['sha256sum', '-c', '--quiet', 'manifest-sha256.txt'], cwd=out).returncode == 0
     # The mesh as the run wrote it, vertex for vertex, with its colours.
     mine, theirs = trimesh.load(out / f'{name}.ply', process=False), trimesh.load(finished / 'mesh.ply', process=False)
     np.testing.assert_allclose(mine.vertices, theirs.vertices)
