@@ -662,7 +662,8 @@ def photo_copies(shots, folder, n, *, blank=0, settings=False):
         shutil.copy(os.path.join(shots, name), folder / name)
     for i in range(blank):
         import cv2
-        cv2.imwrite(str(folder / f'blank_{i}.jpg'), np.full((480, 640, 3), 128, np.uint8))
+        # Each its own grey: byte-identical photographs are one photograph.
+        cv2.imwrite(str(folder / f'blank_{i}.jpg'), np.full((480, 640, 3), 128 + i, np.uint8))
     if settings:
         shutil.copy(os.path.join(shots, 'capture.json'), folder / 'capture.json')
     return folder
