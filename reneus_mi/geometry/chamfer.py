@@ -105,5 +105,6 @@ def extents(pred_points: np.ndarray, gt_points: np.ndarray) -> dict:
     axes = np.linalg.svd(centred, full_matrices=False)[2]
     gt_size = np.ptp(gt_points @ axes.T, axis=0)
     pred_size = np.ptp(pred_points @ axes.T, axis=0)
-    return {'gt': gt_size.tolist(), 'pred': pred_size.tolist(),
-            'error_pct': (100.0 * (pred_size - gt_size) / gt_size).tolist()}
+    # A flat truth has no size across: its error there is not a share of anything.
+    error = np.divide(100.0 * (pred_size - gt_size), gt_size, out=np.full(3, np.nan), where=gt_size > 0)
+    return {'gt': gt_size.tolist(), 'pred': pred_size.tolist(), 'error_pct': error.tolist()}
