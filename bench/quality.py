@@ -620,7 +620,11 @@ def _capture_lines(rows: list[dict], ran) -> list[str]:
              '`python -m reneus_mi.optimize scene.xml -o RUN --max-minutes M --quiet`, '
              f'`python -m reneus_mi.evaluate RUN/mesh.ply TRUTH/specimen.ply --json ... --threshold {threshold} '
              f"--postprocess {_joined(rows, 'postprocess')}`. Chamfer-L1 in mm (evaluate's x100 / 100), "
-             f'F-score at {threshold} mm; pieces: the components of the run\'s `mesh.ply`. PSNR: the '
+             f'F-score at {threshold} mm; precision / recall (the share of the mesh near the truth / of the '
+             "truth near the mesh) at 0.1 and 0.2 mm and at one and two pixels' footprint at the specimen "
+             "(from truth.json's cameras); extent error in % along the truth's principal axes, longest "
+             "first; reach: how far the mesh follows each leg, then each antenna, in % of its length "
+             "(`evaluate --limbs truth.json`); pieces: the components of the run's `mesh.ply`. PSNR: the "
              f"training PSNR's mean over {PSNR_WINDOW} steps: its best (at step), its end, and the share of "
              f'the run\'s steps during which it lay more than {PSNR_DROP:g} dB below its best so far. '
              'Pictures: the mesh (left) beside the truth (right), seen from above the board.', '',
