@@ -51,10 +51,12 @@ class PixelSamplerConfig:
         if not 0.0 <= self.error_share <= 1.0:
             raise ReneusError(f'error_share={self.error_share}: expected a share in [0, 1]')
 
+
 #: Bytes per photograph pixel that the sampler holds beyond the dataset: the colours on the
-#: device (12) and the masked pixels' indices (4); the int64 indices it builds them from fit in
-#: what loading the dataset freed (``python bench/memory.py``).
-BYTES_PER_PIXEL = 16
+#: device (12), the masked pixels' indices (4) and, for batches drawn by error, their errors and
+#: its prefix sum (8); the int64 indices it builds them from fit in what loading the dataset
+#: freed (``python bench/memory.py``).
+BYTES_PER_PIXEL = 24
 
 
 class PixelSampler:
