@@ -33,8 +33,8 @@ import numpy as np
 from reneus_mi.data.cameras import (OPENGL_FROM_OPENCV, check_c2w, check_K, focal_from_fov,
                                     has_skew, intrinsics)
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
-from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_image, read_mask, reduced_size,
-                                   resize, write_image)
+from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, holds_8_bits, read_image,
+                                   read_mask, reduced_size, resize, stored, write_image)
 from reneus_mi.data.undistort import DISTORTION_KEYS, distortion, undistort
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_write_text, load_json
@@ -136,6 +136,7 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
     for i, (frame, file) in enumerate(zip(frames, files)):
         where = f"{path}: frames[{i}]"
         rgb, alpha = read_image(file)
+        eight_bit = holds_8_bits(rgb)
         height, width = rgb.shape[:2]
         keep = _keep_mask(root, frame, (width, height), where)
         cam = {**top, **{k: frame[k] for k in _INTRINSIC_KEYS if k in frame}}
@@ -155,7 +156,7 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
         except (TypeError, ValueError):
             raise ReneusError(f"{where}: 'transform_matrix' must be a 4x4 matrix of numbers") from None
         c2ws.append(check_c2w(gl, f"{where}: transform_matrix") @ OPENGL_FROM_OPENCV)
-        images.append(rgb)
+        images.append(stored(rgb, eight_bit))
         masks.append(None if alpha is None else alpha >= 0.5)  # a reduced pixel half inside is inside
         keeps.append(None if keep is None else keep >= 0.5)
     ds = assemble(images=images, masks=masks, K=np.stack(Ks), c2w=np.stack(c2ws),
@@ -206,7 +207,7 @@ def write(ds: Dataset, out_dir: str) -> None:
     for i, name in enumerate(ds.names):
         file_path = f"images/{os.path.splitext(name)[0]}.png"
         write_image(os.path.join(out_dir, file_path),
-                    np.concatenate([ds.images[i], ds.masks[i][..., None]], axis=-1))
+                    np.concatenate([ds.image(i), ds.masks[i][..., None]], axis=-1))
         frame = {'file_path': file_path,
                  'transform_matrix': (ds.c2w[i] @ OPENGL_FROM_OPENCV).tolist()}
         if not shared:

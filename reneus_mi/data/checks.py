@@ -29,6 +29,7 @@ import numpy as np
 
 from reneus_mi.config import GAMMA
 from reneus_mi.data.cameras import pixel_rays
+from reneus_mi.data.images import as_float
 from reneus_mi.geometry.container import inside
 from reneus_mi.geometry.mesh import mitsuba_mesh
 from reneus_mi.utils.errors import ReneusError
@@ -169,7 +170,7 @@ def warn_exposure_outliers(images, files: list[str]) -> None:
     if len(images) < 3:
         return
     # The mean: a median flips between a print's black and white with the framing.
-    level = np.array([np.mean(np.asarray(image[::4, ::4], np.float32) ** GAMMA) for image in images])
+    level = np.array([np.mean(as_float(image[::4, ::4]) ** GAMMA) for image in images])
     typical = np.median(level)
     if not typical > 0:
         return

@@ -35,7 +35,7 @@ import numpy as np
 
 from reneus_mi.data.cameras import check_c2w, check_K, pixel_rays
 from reneus_mi.data.checks import check_ior, check_views, warn_exposure_outliers
-from reneus_mi.data.images import read_image
+from reneus_mi.data.images import as_float, read_image
 from reneus_mi.data.masks import container_masks
 from reneus_mi.geometry.container import bounding_sphere, load_container, mesh_type
 from reneus_mi.utils.errors import ReneusError
@@ -97,7 +97,10 @@ class Dataset:
     Cameras are OpenCV pinholes (see :mod:`reneus_mi.data.cameras`); all
     geometry is in world coordinates, the ones the container mesh is given in.
     """
-    #: (N,H,W,3) float32 in [0,1]: pixel values as in the photographs (gamma-encoded).
+    #: (N,H,W,3): pixel values as in the photographs (gamma-encoded), as the readers hold them
+    #: (:func:`~reneus_mi.data.images.stored`: uint8 where every file had 8 bits, else uint16;
+    #: 255 or 65535 is 1) or float32 in [0,1] (a dataset made in memory); :meth:`image` gives
+    #: a view as float32.
     images: np.ndarray
     #: (N,H,W) bool: where the container is seen (the paper's M_in).
     masks: np.ndarray
@@ -136,6 +139,10 @@ class Dataset:
 
     def __len__(self) -> int:
         return len(self.images)
+
+    def image(self, view: int) -> np.ndarray:
+        """(H,W,3) float32 in [0,1]: the photograph of ``view``."""
+        return as_float(self.images[view])
 
     @property
     def height(self) -> int:
@@ -184,7 +191,9 @@ class Dataset:
         if self.images.ndim != 4 or self.images.shape[-1] != 3 or n == 0:
             raise ReneusError(f"{self.root}: images: expected shape (N,H,W,3) with N > 0, "
                              f"got {self.images.shape}")
-        if not np.all((self.images >= 0) & (self.images <= 1)):
+        if self.images.dtype not in (np.uint8, np.uint16, np.float32):
+            raise ReneusError(f"{self.root}: images: expected dtype uint8, uint16 or float32, got {self.images.dtype}")
+        if self.images.dtype == np.float32 and not np.all((self.images >= 0) & (self.images <= 1)):
             raise ReneusError(f"{self.root}: images: expected values in [0, 1]")
         expected = {'masks': (self.masks, self.images.shape[:3]), 'K': (self.K, (n, 3, 3)),
                     'c2w': (self.c2w, (n, 4, 4))}
@@ -410,6 +419,18 @@ def check_writable(ds: Dataset, out_dir: str) -> None:
         raise ReneusError(f"{out_dir}: expected a folder to write the dataset into, found a file")
 
 
+def _stack(images: list[np.ndarray]) -> np.ndarray:
+    """Images as :func:`~reneus_mi.data.images.stored` holds them, in one array of one type: 8 bits
+    where all are, else 16; float32 where any is float (made in memory)."""
+    types = {image.dtype for image in images}
+    if types <= {np.dtype(np.uint8), np.dtype(np.uint16)}:
+        if len(types) == 1:
+            return np.stack(images)
+        return np.stack([image.astype(np.uint16) * np.uint16(257) if image.dtype == np.uint8 else image
+                         for image in images])
+    return np.stack([as_float(image) for image in images])
+
+
 def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.ndarray,
              c2w: np.ndarray, names: list[str], files: list[str], root: str, meta_file: str,
              need_container: bool, container: str | None = None, ior: float | None = None,
@@ -450,7 +471,7 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
             computed = np.ones((len(missing), height, width), bool)
         for i, m in zip(missing, computed):
             masks[i] = m
-    ds = Dataset(images=np.stack(images).astype(np.float32, copy=False), masks=np.stack(masks),
+    ds = Dataset(images=_stack(images), masks=np.stack(masks),
                  K=np.asarray(K, np.float64), c2w=np.asarray(c2w, np.float64), names=list(names),
                  root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat,
                  ambient=ambient, absorption=absorption, inner=inner, masks_measured=not missing, board=board,

@@ -34,8 +34,8 @@ READ_TYPES = 'a PNG, JPEG, EXR, or 8- or 16-bit TIFF file'
 #: Image files :func:`write_image` writes.
 WRITE_EXTENSIONS = ('.exr', '.png')
 
-#: Bytes per pixel of a dataset while it loads: its RGB float32 images as read and again
-#: stacked (2 x 12), its masks, the container's projection. With
+#: Bytes per pixel of a dataset while it loads: its RGB images as held (:func:`stored`,
+#: 16-bit at most) and again stacked (2 x 6), its masks, the container's projection. With
 #: :data:`DECODE_BYTES_PER_PIXEL` (the one photograph being decoded: its samples, the RGBA
 #: float32 conversion and its copies, at its own size) an upper bound of the peak that
 #: ``python bench/memory.py`` measured: 33.0 B/pixel for 32 PNGs of 512x512 (checked at
@@ -182,6 +182,29 @@ def _read_tiff(path: str) -> tuple[np.ndarray, bool]:
     if channels in (2, 4):
         rgba[..., 3] = data[..., -1] / scale
     return rgba, channels in (2, 4)
+
+
+def stored(rgb: np.ndarray, eight_bit: bool) -> np.ndarray:
+    """Display values in [0, 1] as a dataset holds them: 8-bit integers where the photograph had
+    8 bits (``eight_bit``: :func:`holds_8_bits` of it as read), 16-bit ones otherwise, a quarter
+    and a half of float32's bytes."""
+    top = 255.0 if eight_bit else 65535.0
+    return np.round(np.clip(rgb, 0.0, 1.0) * np.float32(top)).astype(np.uint8 if eight_bit else np.uint16)
+
+
+def holds_8_bits(rgb: np.ndarray) -> bool:
+    """Whether every value of an image as read is k/255: an 8-bit file, which 8 bits keep exactly."""
+    scaled = np.asarray(rgb, np.float32) * np.float32(255.0)
+    return bool(np.all(np.abs(scaled - np.round(scaled)) < 1e-3))
+
+
+def as_float(image: np.ndarray) -> np.ndarray:
+    """An image as :func:`stored` holds it (or float already) as float32 in [0, 1]."""
+    if image.dtype == np.uint8:
+        return image.astype(np.float32) / np.float32(255.0)
+    if image.dtype == np.uint16:
+        return image.astype(np.float32) / np.float32(65535.0)
+    return np.asarray(image, np.float32)
 
 
 def read_mask(path: str) -> np.ndarray:

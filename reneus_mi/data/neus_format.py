@@ -33,8 +33,8 @@ import numpy as np
 
 from reneus_mi.data.cameras import compose_projection, decompose_projection
 from reneus_mi.data.dataset import Dataset, assemble, read_extras, write_extras
-from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, read_image, read_mask, reduced_size,
-                                   resize, write_image)
+from reneus_mi.data.images import (IMAGE_EXTENSIONS, check_images_fit, holds_8_bits, read_image,
+                                   read_mask, reduced_size, resize, stored, write_image)
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_savez, atomic_write_text, load_json
 
@@ -130,7 +130,7 @@ def read(path: str, *, need_container: bool = True, max_size: int = 0, extra_per
         rgb = read_image(file)[0]
         height, width = rgb.shape[:2]
         size = reduced_size(width, height, max_size)
-        images.append(resize(rgb, size))
+        images.append(stored(resize(rgb, size), holds_8_bits(rgb)))
         scaled.append(np.diag([size[0] / width, size[1] / height, 1.0]) @ Ks[i])
         if mask_files:
             mask = read_mask(mask_files[i])
@@ -169,7 +169,7 @@ def write(ds: Dataset, out_dir: str) -> None:
     for sub in ('image', 'mask'):
         os.makedirs(os.path.join(out_dir, sub), exist_ok=True)
     for i, stem in enumerate(stems):
-        write_image(os.path.join(out_dir, 'image', f'{stem}.png'), ds.images[i])
+        write_image(os.path.join(out_dir, 'image', f'{stem}.png'), ds.image(i))
         write_image(os.path.join(out_dir, 'mask', f'{stem}.png'), ds.masks[i].astype(np.float32))
     cams = {}
     for i in range(len(ds)):

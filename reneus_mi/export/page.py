@@ -152,7 +152,7 @@ def _pairs(mesh_path: str, dataset, tmp: str) -> list[tuple[str, str]]:
         scale = PICTURE / max(x1 - x0, y1 - y0)
         size = (max(1, int(round((x1 - x0) * scale))), max(1, int(round((y1 - y0) * scale))))
         photo = os.path.join(tmp, f'photo_{i}.png')
-        write_image(photo, resize(dataset.images[i][y0:y1, x0:x1], size))
+        write_image(photo, resize(dataset.image(i)[y0:y1, x0:x1], size))
         # The window's camera: the same rays, its pixels scaled and shifted.
         K_window = np.array([[K[0, 0] * scale, 0.0, (K[0, 2] - x0) * scale],
                              [0.0, K[1, 1] * scale, (K[1, 2] - y0) * scale], [0.0, 0.0, 1.0]])

@@ -1,7 +1,8 @@
 """Camera rays of the photographs, drawn and built on the device.
 
-The photographs, the container masks' pixel indices and the cameras are
-uploaded once as Dr.Jit arrays. A batch is a set of masked pixels drawn with
+The container masks' pixel indices, the photographs' colours there (as the dataset holds
+them: 8-bit integers for 8-bit photographs, half floats for 16-bit ones) and the cameras
+are uploaded once as Dr.Jit arrays; pixels outside the masks cost the device nothing. A batch is a set of masked pixels drawn with
 Dr.Jit's PCG32 from a state that depends only on ``(seed, step)``
 (:mod:`reneus_mi.render.seeds`): a run resumed at step k draws what the unbroken
 run drew, and no NumPy array is touched during training.
@@ -12,9 +13,12 @@ what the photograph averages over the pixel (the leg covering a share of it) is 
 renders average over the steps; through the centre only, a leg between two centres is
 never seen. And a share of each batch (``error_share``) is drawn in proportion to the
 colour error that each pixel had when it was last drawn: a leg two pixels wide is 1-2 % of
-the container's pixels, and the body's pixels, fitted early, keep taking the rest. The
-error of the pixels is the sampler's state (saved in the checkpoint: a resumed run draws
-what the unbroken one drew).
+the container's pixels, and the body's pixels, fitted early, keep taking the rest. Such a
+draw picks a block of :data:`ERROR_BLOCK` pixels by the prefix sum of the blocks' errors
+(float64, rebuilt every ``error_refresh`` steps), then a pixel within the block by the errors
+now: a float32 prefix sum over tens of millions of pixels (a full-resolution capture) cannot
+resolve one pixel's error against the total. The errors and the blocks' prefix sum are the
+sampler's state (saved in the checkpoint: a resumed run draws what the unbroken one drew).
 """
 from __future__ import annotations
 
@@ -44,7 +48,8 @@ class PixelSamplerConfig:
     """Share of each batch drawn in proportion to each pixel's colour error when it was last
     drawn (the rest uniformly over the container's pixels; 0: all uniformly)."""
     error_refresh: int = 32
-    """Steps between rebuilds of the error's distribution (a prefix sum over every pixel)."""
+    """Steps between rebuilds of the error's distribution over blocks of pixels (a sum over
+    every pixel)."""
 
     def __post_init__(self):
         check_numbers(self, positive=('error_refresh',))
@@ -52,11 +57,13 @@ class PixelSamplerConfig:
             raise ReneusError(f'error_share={self.error_share}: expected a share in [0, 1]')
 
 
-#: Bytes per photograph pixel that the sampler holds beyond the dataset: the colours on the
-#: device (12), the masked pixels' indices (4) and, for batches drawn by error, their errors and
-#: its prefix sum (8); the int64 indices it builds them from fit in what loading the dataset
-#: freed (``python bench/memory.py``).
-BYTES_PER_PIXEL = 24
+#: Bytes per photograph pixel that the sampler holds beyond the dataset, at most (a masked
+#: pixel's): its index (4), its colour (3 as 8-bit integers, 6 as half floats) and, for batches
+#: drawn by error, its error (4) and a share of its block's prefix sum; the int64 indices it
+#: builds them from fit in what loading the dataset freed (``python bench/memory.py``).
+BYTES_PER_PIXEL = 16
+#: Pixels per block of the error-driven draw (see the module docstring).
+ERROR_BLOCK = 64
 
 
 class PixelSampler:
@@ -76,7 +83,7 @@ class PixelSampler:
         self.seed, self.height, self.width = seed, h, w
         self.pixels = mi.UInt32(pixels.astype(np.uint32))
         self.n_pixels = len(pixels)
-        self.colors = mi.Float(dataset.images.reshape(-1).astype(np.float32, copy=False))
+        self.colors, self.color_scale = _compact(dataset.images.reshape(-1, 3)[pixels])
         # Per view: rows of K⁻¹ and of the camera-to-world rotation, and the camera position.
         k_inv = np.linalg.inv(dataset.K)
         self.k_inv = mi.Float(k_inv[:, :2, :].reshape(-1).astype(np.float32))
@@ -84,7 +91,7 @@ class PixelSampler:
         self.origin = mi.Float(dataset.c2w[:, :3, 3].reshape(-1).astype(np.float32))
         # Unseen pixels count as badly fitted (errors are mean absolute colour differences).
         self.error = dr.full(mi.Float, 1.0, self.n_pixels) if self.config.error_share else None
-        self.cdf = _cdf(self.error) if self.error is not None else None
+        self.cdf = _block_cdf(self.error) if self.error is not None else None
         self.drawn: mi.UInt32 | None = None
 
     def batch(self, step: int, n: int) -> tuple[mi.Ray3f, mi.Color3f]:
@@ -94,16 +101,34 @@ class PixelSampler:
         slot = rng.next_uint32_bounded(self.n_pixels)
         if self.error is not None:
             if step % cfg.error_refresh == 0:
-                self.cdf = _cdf(self.error)
-            total = dr.gather(mi.Float, self.cdf, self.n_pixels - 1)
-            u = rng.next_float32() * total
-            by_error = dr.binary_search(0, self.n_pixels - 1, lambda k: dr.gather(mi.Float, self.cdf, k) <= u)
+                self.cdf = _block_cdf(self.error)
+            by_error = self._by_error(rng)
             uniform = self.uniform_lanes(n)
             slot = by_error if uniform is None else dr.select(uniform, slot, by_error)
             self.drawn = slot
         index = dr.gather(mi.UInt32, self.pixels, slot)
         offset = (rng.next_float32(), rng.next_float32()) if cfg.jitter else (0.5, 0.5)
-        return self.rays(index, offset), self.color(index)
+        return self.rays(index, offset), self.color(slot)
+
+    def _by_error(self, rng: mi.PCG32) -> mi.UInt32:
+        """Slots drawn in proportion to their errors: a block by the prefix sum of the last
+        refresh, a pixel within it by the errors now (module docstring)."""
+        Float64 = dr.float64_array_t(mi.Float)
+        n_blocks = dr.width(self.cdf)
+        u = Float64(rng.next_float32()) * dr.gather(Float64, self.cdf, n_blocks - 1)
+        block = dr.binary_search(0, n_blocks - 1, lambda k: dr.gather(Float64, self.cdf, k) <= u)
+        first = block * ERROR_BLOCK
+        size = dr.minimum(ERROR_BLOCK, self.n_pixels - first)
+
+        def error(k):
+            return dr.gather(mi.Float, self.error, first + k)
+        k, total = dr.while_loop((mi.UInt32(0), mi.Float(0.0)), lambda k, t: k < size,
+                                 lambda k, t: (k + 1, t + error(k)))
+        target = rng.next_float32() * total
+        k, below = dr.while_loop((mi.UInt32(0), mi.Float(0.0)),
+                                 lambda k, b: (k + 1 < size) & (b + error(k) <= target),
+                                 lambda k, b: (k + 1, b + error(k)))
+        return first + k
 
     def uniform_lanes(self, n: int) -> mi.Bool | None:
         """Which of a batch's ``n`` rays are drawn uniformly (None: all of them, or none)."""
@@ -120,23 +145,28 @@ class PixelSampler:
         """What a checkpoint keeps of the sampler."""
         if self.error is None:
             return {}
-        return {'error': np.asarray(self.error, np.float32), 'cdf': np.asarray(self.cdf, np.float32)}
+        return {'error': np.asarray(self.error, np.float32), 'block_cdf': np.asarray(self.cdf, np.float64)}
 
     def load(self, state: dict[str, np.ndarray], where: str) -> None:
         if self.error is None:
             return
-        if 'error' not in state or len(state['error']) != self.n_pixels:
+        if 'error' not in state or len(state['error']) != self.n_pixels or 'block_cdf' not in state:
             raise ReneusError(f'{where}: no pixel errors for the {self.n_pixels} pixels of this dataset; '
-                              'expected the checkpoint of a run with train.pixels.error_share > 0 on it')
-        self.error, self.cdf = mi.Float(state['error']), mi.Float(state['cdf'])
+                              'expected the checkpoint of a run with train.pixels.error_share > 0 on it '
+                              '(made by this version of reneus-mi)')
+        self.error = mi.Float(state['error'])
+        self.cdf = dr.float64_array_t(mi.Float)(state['block_cdf'])
 
     def view(self, view: int, stride: int = 1) -> mi.UInt32:
         """Flat indices of every ``stride``-th pixel of a view, row by row."""
         ys, xs = np.mgrid[0:self.height:stride, 0:self.width:stride]
         return mi.UInt32(((view * self.height + ys) * self.width + xs).reshape(-1).astype(np.uint32))
 
-    def color(self, index: mi.UInt32) -> mi.Color3f:
-        return dr.gather(mi.Color3f, self.colors, index)
+    def color(self, slot: mi.UInt32) -> mi.Color3f:
+        """The photographs' colours at masked pixels (by slot: their place among the masked)."""
+        stored = type(self.colors)
+        return mi.Color3f(*[mi.Float(dr.gather(stored, self.colors, 3 * slot + c)) * self.color_scale
+                            for c in range(3)])
 
     def rays(self, index: mi.UInt32, offset=(0.5, 0.5)) -> mi.Ray3f:
         """World rays through the pixels with flat indices (view, y, x), at ``offset`` (x, y)
@@ -155,11 +185,24 @@ class PixelSampler:
         return mi.Ray3f(dr.gather(mi.Point3f, self.origin, view), dr.normalize(d))
 
 
-def _cdf(weights: mi.Float) -> mi.Float:
-    """The inclusive prefix sum of ``weights``: pixel k is drawn where u lies in [cdf[k-1], cdf[k])."""
-    cdf = dr.prefix_reduce(dr.ReduceOp.Add, weights, exclusive=False)
+def _block_cdf(error: mi.Float):
+    """The inclusive prefix sum (float64) of the errors' sums over blocks of :data:`ERROR_BLOCK`:
+    block b is drawn where u lies in [cdf[b-1], cdf[b])."""
+    sums = dr.float64_array_t(mi.Float)(dr.block_reduce(dr.ReduceOp.Add, error, ERROR_BLOCK))
+    cdf = dr.prefix_reduce(dr.ReduceOp.Add, sums, exclusive=False)
     dr.eval(cdf)
     return cdf
+
+
+def _compact(colors: np.ndarray):
+    """(M,3) colours as the device holds them, flat, and the scale to [0, 1]: 8-bit integers
+    as they are, 16-bit ones as half floats, float32 (a dataset made in memory) as it is."""
+    if colors.dtype == np.uint8:
+        return dr.uint8_array_t(mi.Float)(colors.reshape(-1)), 1.0 / 255.0
+    if colors.dtype == np.uint16:
+        half = (colors.reshape(-1) / np.float32(65535.0)).astype(np.float16)
+        return dr.float16_array_t(mi.Float)(half), 1.0
+    return mi.Float(colors.reshape(-1).astype(np.float32, copy=False)), 1.0
 
 
 def widen(masks: np.ndarray, margin: float) -> np.ndarray:

@@ -334,7 +334,7 @@ class Trainer:
     def validate(self) -> None:
         view = self.cfg.validation_view
         image, normals = self.render_view(view)
-        both = np.concatenate([image, self.ds.images[view]], axis=1)
+        both = np.concatenate([image, self.ds.image(view)], axis=1)
         os.makedirs(self.folder.images, exist_ok=True)
         write_image(os.path.join(self.folder.images, f'{self.iteration:06d}.png'), both)
         write_image(os.path.join(self.folder.images, f'{self.iteration:06d}_normal.png'), normals * 0.5 + 0.5)

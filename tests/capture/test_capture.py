@@ -182,7 +182,7 @@ def test_scene_board_is_the_photographed_one(made, tmp_path):
         xml = tmp_path / f'{board}.xml'
         assert scene_command.main([str(made['out']), '-o', str(xml), '--board', board]) == 0
         assert os.path.isfile(tmp_path / f'{board}_board.exr') == (board == 'scene')
-        d = np.abs(path_render(xml, ds, view) - ds.images[view]).mean(axis=-1)
+        d = np.abs(path_render(xml, ds, view) - ds.image(view)).mean(axis=-1)
         error[board] = d[~around].mean(), np.median(d[glass])
     print(error)
     assert error['scene'][0] < 0.03
@@ -325,7 +325,7 @@ def test_nerfstudio_opencv_distortion_is_taken_out(tmp_path):
     ds = load_dataset(str(tmp_path), need_container=False)
     inner = np.zeros((120, 160), bool)
     inner[16:-16, 16:-16] = True
-    corrected = np.abs(ds.images[0, ..., 0] - pinhole)[inner].mean()
+    corrected = np.abs(ds.image(0)[..., 0] - pinhole)[inner].mean()
     assert corrected < 0.01
     # The same file read as a pinhole keeps the distortion.
     meta['camera_model'] = 'PINHOLE'
@@ -333,7 +333,7 @@ def test_nerfstudio_opencv_distortion_is_taken_out(tmp_path):
         del meta[key]
     (tmp_path / 'transforms.json').write_text(json.dumps(meta))
     raw = load_dataset(str(tmp_path), need_container=False)
-    assert np.abs(raw.images[0, ..., 0] - pinhole)[inner].mean() > 4 * corrected
+    assert np.abs(raw.image(0)[..., 0] - pinhole)[inner].mean() > 4 * corrected
 
 
 def test_settings_from_the_capture_file_or_the_flags(tmp_path):
@@ -380,5 +380,5 @@ def test_colmap_model_read_and_undistorted(tmp_path):
     np.testing.assert_allclose(ds.K[0], K, atol=1e-9)
     inner = np.zeros((120, 160), bool)
     inner[16:-16, 16:-16] = True
-    assert np.abs(ds.images[0, ..., 0] - pinhole)[inner].mean() < 0.01
+    assert np.abs(ds.image(0)[..., 0] - pinhole)[inner].mean() < 0.01
     assert ds.ior == 1.5

@@ -80,7 +80,7 @@ def test_dataset_describes_the_photographs(hollow, tmp_path):
     error = {}
     for model in ('nested', 'solid'):
         d = [np.median(np.abs(path_render(xml, ds, view, specimen=specimen, inner=model == 'nested')
-                              - ds.images[view]).mean(axis=-1)[ds.masks[view]]) for view in (0, 7)]
+                              - ds.image(view)).mean(axis=-1)[ds.masks[view]]) for view in (0, 7)]
         error[model] = float(np.mean(d))
     print(hollow['kind'], error)
     assert error['nested'] < MEDIAN_ERROR and error['solid'] > SOLID_WORSE[hollow['kind']] * error['nested'], error

@@ -11,7 +11,7 @@ import trimesh
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.data.dataset import check_same_dataset, dataset_fingerprint
-from reneus_mi.data.images import read_image, write_image
+from reneus_mi.data.images import as_float, read_image, write_image
 from reneus_mi.data.masks import container_masks
 from reneus_mi.utils.errors import ReneusError
 
@@ -61,8 +61,9 @@ def test_round_trip(written, fmt):
     assert back.names == (ds.names if fmt == 'blender' else ['000.png', '001.png', '002.png'])
     assert np.abs(back.K - ds.K).max() < 1e-5
     assert np.abs(back.c2w - ds.c2w).max() < 1e-5
-    # 8-bit PNG: half a quantisation step.
-    assert np.abs(back.images - ds.images).max() <= 0.5 / 255 + 1e-6
+    # 8-bit PNG: half a quantisation step; held as the file's 8 bits.
+    assert back.images.dtype == np.uint8
+    assert np.abs(as_float(back.images) - ds.images).max() <= 0.5 / 255 + 1e-6
     assert np.array_equal(back.masks, ds.masks)
     assert back.ior == 1.5 and back.gt_mesh is None
     assert np.array_equal(back.absorption, [0.1, 0.2, 0.4])
@@ -310,7 +311,7 @@ def test_neus_views_follow_the_number_in_the_name(tmp_path):
             os.rename(folder / sub / f'{i:03d}.png', folder / sub / f'{i}.png')
     back = load_dataset(str(folder))
     assert back.names == [f'{i}.png' for i in range(12)]
-    grey = back.images[:, 0, 0, 0]
+    grey = as_float(back.images[:, 0, 0, 0])
     assert np.abs(grey - np.arange(12) / 12).max() <= 0.5 / 255 + 1e-6
     assert np.abs(back.c2w - ds.c2w).max() < 1e-5
 
@@ -347,7 +348,7 @@ def test_blender_follows_its_frames_list(tmp_path):
     (folder / 'transforms.json').write_text(json.dumps(meta))
     back = load_dataset(str(folder))
     assert back.names == [f'v{i}.png' for i in reversed(range(12))]
-    assert np.abs(back.images[:, 0, 0, 0] - np.arange(12)[::-1] / 12).max() <= 0.5 / 255 + 1e-6
+    assert np.abs(as_float(back.images[:, 0, 0, 0]) - np.arange(12)[::-1] / 12).max() <= 0.5 / 255 + 1e-6
     assert np.abs(back.c2w - ds.c2w[::-1]).max() < 1e-5
 
 
@@ -501,8 +502,9 @@ def test_max_size_reduces_photographs_and_cameras_alike(written, fmt):
     _, root = written
     full, half = load_dataset(str(root / fmt)), load_dataset(str(root / fmt), max_size=W // 2)
     assert half.images.shape == (3, H // 2, W // 2, 3)
-    blocks = full.images.reshape(3, H // 2, 2, W // 2, 2, 3).mean(axis=(2, 4))
-    assert np.abs(half.images - blocks).max() < 1e-6
+    blocks = as_float(full.images).reshape(3, H // 2, 2, W // 2, 2, 3).mean(axis=(2, 4))
+    # Held in the files' 8 bits: the average to half a step.
+    assert np.abs(as_float(half.images) - blocks).max() <= 0.5 / 255 + 1e-6
     assert np.array_equal(half.masks, full.masks.reshape(3, H // 2, 2, W // 2, 2).mean(axis=(2, 4)) >= 0.5)
     assert np.allclose(half.K, np.diag([0.5, 0.5, 1.0]) @ full.K)
     px = np.tile(np.stack(np.meshgrid(np.arange(W // 2), np.arange(H // 2)), -1).reshape(-1, 2), (3, 1))

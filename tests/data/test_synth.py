@@ -13,6 +13,7 @@ import mitsuba as mi
 import reneus_mi  # noqa: F401  (sets the variant)
 from reneus_mi.data import load_dataset, objects, synth
 from reneus_mi.data.masks import container_masks
+from reneus_mi.data.images import as_float
 from reneus_mi.synth import main as synth_main
 
 BACKGROUND = synth.AMBIENT ** (1.0 / synth.GAMMA)
@@ -139,7 +140,7 @@ def test_dataset_round_trip(tmp_path):
             np.testing.assert_allclose(ds.c2w, res['c2w'], atol=1e-6)
             np.testing.assert_array_equal(ds.masks, res['masks'])
             # 8-bit files: half a step of quantisation.
-            np.testing.assert_allclose(ds.images, res['images'][subset], atol=0.5 / 255 + 1e-6)
+            np.testing.assert_allclose(as_float(ds.images), res["images"][subset], atol=0.5 / 255 + 1e-6)
             assert ds.ior == (synth.IOR if with_box else None)
             assert (ds.container is not None) == with_box
             gt = trimesh.load(ds.gt_mesh)

@@ -66,7 +66,7 @@ def test_model_seen_through_the_container_where_the_photograph_shows_it(tmp_path
         render_view(str(mesh), out, K, c2w, size, spp=256, through=through if glass else ())
         return np.asarray(mi.Bitmap(out), np.float64)[..., :3].mean(axis=2)
 
-    photo = (ds.images[0] ** 2.2).mean(axis=2)            # the photographs hold C^(1/2.2)
+    photo = (ds.image(0) ** 2.2).mean(axis=2)             # the photographs hold C^(1/2.2)
     seen = np.abs(photo - render(tmp_path / 'speck.ply', True)) > 0.05
 
     def iou(glass):

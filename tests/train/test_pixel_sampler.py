@@ -1,0 +1,80 @@
+"""The pixel sampler: colours as the photographs hold them, and draws in proportion to error."""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from reneus_mi.data import Dataset
+from reneus_mi.train.pixel_sampler import ERROR_BLOCK, PixelSampler, PixelSamplerConfig
+
+
+def _dataset(images: np.ndarray, masks: np.ndarray) -> Dataset:
+    n, h, w = masks.shape
+    K = np.tile(np.array([[w, 0, w / 2], [0, w, h / 2], [0, 0, 1]], np.float64), (n, 1, 1))
+    return Dataset(images=images, masks=masks, K=K, c2w=np.tile(np.eye(4), (n, 1, 1)),
+                   names=[f'{i}.png' for i in range(n)], root='memory')
+
+
+@pytest.mark.parametrize('dtype, tolerance', [(np.uint8, 0.0), (np.uint16, 2.0 ** -11), (np.float32, 0.0)])
+def test_colours_are_the_photographs(dtype, tolerance):
+    rng = np.random.default_rng(1)
+    masks = rng.random((3, 20, 30)) < 0.4
+    top = {np.uint8: 255, np.uint16: 65535, np.float32: 1.0}[dtype]
+    values = rng.random((3, 20, 30, 3))
+    images = (np.round(values * top) if top != 1.0 else values).astype(dtype)
+    sampler = PixelSampler(_dataset(images, masks), config=PixelSamplerConfig(error_share=0.0))
+    got = np.asarray(sampler.color(dr.arange(mi.UInt32, sampler.n_pixels))).T
+    expected = images[masks].astype(np.float64) / top
+    assert got.shape == expected.shape
+    assert np.max(np.abs(got - expected)) <= tolerance + 1e-7
+
+
+def test_draws_follow_the_errors():
+    """Frequencies of error-driven draws against each pixel's share of the errors, with blocks
+    of very different sums and a last block shorter than ERROR_BLOCK."""
+    rng = np.random.default_rng(2)
+    masks = np.zeros((2, 30, 40), bool)
+    masks[:, 5:25, 3:37] = True                     # 1360 pixels: 21 blocks and 16 left over
+    assert masks.sum() % ERROR_BLOCK != 0
+    sampler = PixelSampler(_dataset(np.zeros(masks.shape + (3,), np.uint8), masks), seed=3,
+                           config=PixelSamplerConfig(jitter=False, error_share=1.0, error_refresh=10 ** 6))
+    error = rng.random(sampler.n_pixels).astype(np.float32) ** 4
+    error[:ERROR_BLOCK] = 0.0                                          # a block never drawn
+    error[700] = 40.0                                                  # one pixel with a fifth of it all
+    error[-1] = 5.0                                                    # the short block's last pixel
+    sampler.error = mi.Float(error)
+    counts = np.zeros(sampler.n_pixels)
+    n = 1 << 17
+    for step in range(8):
+        sampler.batch(step * 10 ** 6, n)        # refreshed at step 0 only (error_refresh)
+        np.add.at(counts, np.asarray(sampler.drawn), 1)
+    p = error / error.sum()
+    total = counts.sum()
+    assert counts[:ERROR_BLOCK].sum() == 0
+    for pixel in (700, sampler.n_pixels - 1):
+        assert counts[pixel] / total == pytest.approx(p[pixel], rel=0.02)
+    # Pixels grouped by their expected count: chi-square over the groups.
+    order = np.argsort(p)
+    groups = np.array_split(order[p[order] > 0], 40)
+    expected = np.array([p[g].sum() * total for g in groups])
+    seen = np.array([counts[g].sum() for g in groups])
+    chi2 = float(np.sum((seen - expected) ** 2 / expected))
+    assert chi2 < 80.0, chi2        # 39 degrees of freedom: p < 0.001 beyond 73
+
+
+def test_draws_within_a_block_follow_errors_now():
+    """Between refreshes a block is drawn by the errors it had; a pixel in it by those it has."""
+    masks = np.ones((1, 8, 2 * ERROR_BLOCK // 8), bool)
+    sampler = PixelSampler(_dataset(np.zeros(masks.shape + (3,), np.uint8), masks), seed=4,
+                           config=PixelSamplerConfig(jitter=False, error_share=1.0, error_refresh=10 ** 6))
+    error = np.ones(2 * ERROR_BLOCK, np.float32)
+    sampler.error = mi.Float(error)
+    sampler.batch(0, 16)                                # the blocks' sums: equal
+    error[:ERROR_BLOCK] = 0.0
+    error[5] = 1.0                                      # the first block now has one pixel in error
+    sampler.error = mi.Float(error)
+    sampler.batch(1, 1 << 14)
+    drawn = np.asarray(sampler.drawn)
+    first = drawn < ERROR_BLOCK
+    assert first.mean() == pytest.approx(0.5, abs=0.02)
+    assert np.all(drawn[first] == 5)
