@@ -7,7 +7,9 @@ Layout of ``DATASET_DIR`` (coordinates: the board's frame, millimetres)::
                          "capture": the board (pattern file, size, pose in the world, measured
                          white and black print), each frame's exposure gain (already applied)
                          and photograph, the lens, the container's place; written last
-    images/NAME.png      the photographs, undistorted, scaled, exposures normalised
+    images/NAME.png      of each photograph the window around the container (one size for all,
+                         each with its own cx, cy: :mod:`reneus_mi.capture.crops`),
+                         undistorted, at the dataset's scale, exposures normalised
     container.ply        the container in the board's frame
     container_inner.ply  a hollow container's inside (``--wall-mm``): the air of a case, the
                          liquid of a jar; transforms.json's "containers" names both
@@ -21,6 +23,8 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from tqdm import tqdm
@@ -28,6 +32,8 @@ from tqdm import tqdm
 from reneus_mi.capture import overlay
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.calibrate import Calibration, Coverage
+from reneus_mi.capture.crops import CroppedViews
+from reneus_mi.capture.photos import WORKERS
 from reneus_mi.capture.placement import interfaces, local_mesh
 from reneus_mi.capture.settings import CaptureSettings, to_json
 from reneus_mi.data.cameras import OPENGL_FROM_OPENCV
@@ -54,16 +60,23 @@ def _stem(name: str) -> str:
     return os.path.splitext(name)[0]
 
 
-def write_views(out: str, names: list[str], images: np.ndarray, K: np.ndarray, c2w: np.ndarray,
+def write_views(out: str, names: list[str], images: Sequence[np.ndarray], K: np.ndarray, c2w: np.ndarray,
                 meta: dict, frames: list[dict] | None = None) -> None:
     """``images/NAME.png`` (RGB: the masks are the container's projection, not measured) and
     ``transforms.json`` (written last) with the pinhole cameras, ``meta``'s keys and each
-    frame's extra keys. ``K`` is one (3,3) for all views or (N,3,3)."""
+    frame's extra keys. ``K`` is one (3,3) for all views or (N,3,3); ``images`` of one size,
+    made as they are asked for (:class:`~reneus_mi.capture.crops.CroppedViews`), by
+    :data:`~reneus_mi.capture.photos.WORKERS` at a time."""
     os.makedirs(os.path.join(out, 'images'), exist_ok=True)
-    for name, image in tqdm(list(zip(names, images)), desc='write the dataset', unit='image', disable=None,
-                            leave=False):
-        write_image(os.path.join(out, 'images', _stem(name) + '.png'), image)
-    h, w = images.shape[1:3]
+
+    def one(i):
+        image = images[i]
+        write_image(os.path.join(out, 'images', _stem(names[i]) + '.png'), image)
+        return image.shape[:2]
+    with ThreadPoolExecutor(WORKERS) as pool:
+        shapes = list(tqdm(pool.map(one, range(len(names))), total=len(names), desc='write the dataset',
+                           unit='image', disable=None, leave=False))
+    h, w = shapes[0]
 
     def camera(k):
         return {'fl_x': k[0, 0], 'fl_y': k[1, 1], 'cx': k[0, 2], 'cy': k[1, 2]}
@@ -80,14 +93,16 @@ def write_views(out: str, names: list[str], images: np.ndarray, K: np.ndarray, c
                       json.dumps({**top, **meta, 'frames': entries}, indent=2, default=float))
 
 
-def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.ndarray,
-          images: np.ndarray, reg, light, left_out: dict[str, str], cover: Coverage, exif: dict, *,
+def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.ndarray, frame: tuple[int, int],
+          views: CroppedViews, reg, light, left_out: dict[str, str], cover: Coverage, exif: dict, *,
           given: CaptureSettings | None = None) -> dict:
-    """Write the dataset into ``out`` (checked by the caller); return the report. ``left_out``:
-    every photograph left out, in whichever pass, with its reason; ``exif``: the camera as the
-    photographs' EXIF states it; ``given``: the settings as stated, where ``s`` has the size
-    measured in place of ``auto``."""
-    n, h, w = images.shape[:3]
+    """Write the dataset into ``out`` (checked by the caller); return the report. ``K``,
+    ``frame``: the dataset's pinhole camera and (width, height) before the views are cropped to
+    their windows; ``left_out``: every photograph left out, in whichever pass, with its reason;
+    ``exif``: the camera as the photographs' EXIF states it; ``given``: the settings as stated,
+    where ``s`` has the size measured in place of ``auto``."""
+    w, h = frame
+    windows = views.windows
     placed = interfaces(s.container, s.size_mm, s.ior, s.wall_mm, s.liquid_ior, reg.pose)
     for interface, mesh in placed:
         write_container(mesh, os.path.join(out, interface.mesh), normals=s.container != 'box')
@@ -107,8 +122,8 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
         'views': [{'photo': v.name, 'corners_found': int(len(v.ids)), 'corners_used': int(v.used.sum()),
                    'rms_px': v.rms, 'rotation_std_deg': v.rotation_std_deg,
                    'translation_std_mm': v.translation_std_mm, 'c2w': v.c2w.tolist(), 'exposure_gain': float(g),
-                   'container_residual_px': float(r)}
-                  for v, g, r in zip(cal.views, light.gains, reg.view_residuals)],
+                   'container_residual_px': float(r), 'window_px': [*map(int, corner), *windows.size]}
+                  for v, g, r, corner in zip(cal.views, light.gains, reg.view_residuals, windows.corners)],
         'left_out': left_out,
         'container': {'shape': s.container, 'size_mm': list(s.size_mm), 'wall_mm': s.wall_mm,
                       'liquid_ior': s.liquid_ior, 'pose': list(reg.pose),
@@ -136,7 +151,8 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
             'exposure': 'each frame\'s exposure_gain (relative to the darkest photograph) is divided out of its image',
         },
     }
-    write_views(out, [v.name for v in cal.views], images, K, np.stack([v.c2w for v in cal.views]), meta,
+    Ks = np.stack([windows.K(K, v) for v in range(len(views))])
+    write_views(out, [v.name for v in cal.views], views, Ks, np.stack([v.c2w for v in cal.views]), meta,
                 [{'photo': v.name, 'exposure_gain': float(g)} for v, g in zip(cal.views, light.gains)])
     return report
 

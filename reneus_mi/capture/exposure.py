@@ -43,10 +43,11 @@ class Light:
     #: Where C_out came from: 'background' or 'board white'.
     ambient_from: str
 
-    def normalise(self, images: np.ndarray) -> np.ndarray:
-        """Display images (N,h,w,3) as if all were taken at the darkest exposure."""
-        factors = self.gains ** (-1.0 / RenderConfig.gamma)
-        return (images * factors[:, None, None, None]).astype(np.float32)
+    @property
+    def factors(self) -> np.ndarray:
+        """What each view's display values are multiplied by to look as if taken at the darkest
+        exposure."""
+        return self.gains ** (-1.0 / RenderConfig.gamma)
 
 
 def _around(silhouette: np.ndarray) -> np.ndarray:

@@ -287,6 +287,10 @@ def _cmyk(path: str) -> ReneusError:
                        'export it again as sRGB')
 
 
+#: Photographs decoded at once (each holds its full-size pixels while it is worked on).
+WORKERS = max(1, min(4, os.cpu_count() or 1))
+
+
 def grey(rgb: np.ndarray) -> np.ndarray:
     """The 8-bit grey version of an RGB photograph (for finding the board)."""
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
@@ -304,9 +308,9 @@ def check_memory(n: int, size: tuple[int, int], out_size: tuple[int, int], *, ke
                  workers: int = 1) -> None:
     """Refuse before reading when the capture would not fit in memory.
 
-    Held at once: every photograph's reduced 8-bit copy (``kept``), every output image
-    (float32 RGB, the undistorted and the normalised copy) and, per worker, one photograph
-    being decoded.
+    Held at once: every photograph's reduced 8-bit copy (``kept``), every whole view it works
+    on (``out_size``: float32 RGB, the undistorted and the normalised copy) and, per worker,
+    one photograph being decoded.
     """
     width, height = size
     w, h = out_size

@@ -4,18 +4,22 @@ capture folders.
 
 1. Read every photograph once, in parallel, whole or refused by name
    (:mod:`~reneus_mi.capture.photos`): find the board in it (:mod:`~reneus_mi.capture.board`)
-   and keep a copy reduced to the dataset's size; refuse, in one line, a capture where no
+   and keep a copy reduced to the working size (the dataset's, at most
+   :data:`~reneus_mi.capture.crops.WORK_MAX_SIZE`); refuse, in one line, a capture where no
    photograph shows the board, or shows another dictionary or layout.
 2. Calibrate (:mod:`~reneus_mi.capture.calibrate`), leaving out photographs that cannot take part.
-3. Undistort every reduced copy to the dataset's pinhole camera, scaled by ``--max-size`` or
-   ``--downscale`` (:mod:`~reneus_mi.data.undistort`; memory checked before reading).
+3. Undistort every reduced copy to the working pinhole camera: the dataset's, scaled by
+   ``--max-size`` or ``--downscale``, at the working size (:mod:`~reneus_mi.data.undistort`;
+   memory checked before reading).
 4. Find the container (:mod:`~reneus_mi.capture.register`), or take ``--container-pose``.
 5. Calibrate again without the corners seen through the container, undistort again, refine
    the container's place from the first one.
 6. Measure each photograph's exposure, C_out and the print's brightness
    (:mod:`~reneus_mi.capture.exposure`) and normalise the exposures.
 7. Write an overlay per photograph, then the dataset (:mod:`~reneus_mi.capture.export`;
-   its ``transforms.json`` last: a folder that has one holds the whole dataset).
+   its ``transforms.json`` last: a folder that has one holds the whole dataset): of each view
+   the window around the container, undistorted at the dataset's scale from the photograph
+   (:mod:`~reneus_mi.capture.crops`: decoded again where the working copy is smaller).
 """
 from __future__ import annotations
 
@@ -32,10 +36,12 @@ from tqdm import tqdm
 from reneus_mi.capture import board as board_mod
 from reneus_mi.capture import export, photos, settings as settings_mod
 from reneus_mi.capture.board import Board
+from reneus_mi.capture.crops import WORK_MAX_SIZE, CroppedViews, container_windows
 from reneus_mi.capture.calibrate import EXTRAPOLATION_WARN_PX, Calibration, calibrate, coverage, crop_to_coverage
 from reneus_mi.capture.exposure import measure
 from reneus_mi.capture.placement import board_mesh
 from reneus_mi.capture.register import Outline, register
+from reneus_mi.data.images import reduction, scaled_size
 from reneus_mi.data.undistort import output_size, pinhole_K, undistort
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError
@@ -47,8 +53,6 @@ EXCLUSION_MARGIN_PX = 3.0
 
 #: Why a photograph without the board's corners is left out.
 NO_CORNERS = 'no board corners found (is the board in the picture, sharp and not too oblique?)'
-#: Photographs decoded at once (each holds its full-size pixels while the board is found).
-WORKERS = max(1, min(4, os.cpu_count() or 1))
 
 
 def read_all(board: Board, shots: list[photos.Photo], kept: tuple[int, int]) -> tuple[dict, dict]:
@@ -62,7 +66,7 @@ def read_all(board: Board, shots: list[photos.Photo], kept: tuple[int, int]) -> 
     def one(photo):
         rgb = photos.decode(photo)
         return board.detect(photos.grey(rgb)), photos.reduce(rgb, kept)
-    with ThreadPoolExecutor(WORKERS) as pool:
+    with ThreadPoolExecutor(photos.WORKERS) as pool:
         results = list(tqdm(pool.map(one, shots), total=len(shots), desc='read, find the board', unit='photo',
                             disable=None, leave=False))
     detections = {p.name: det for p, (det, _) in zip(shots, results)}
@@ -148,24 +152,26 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     shots = photos.orientations(photos.list_photos(photos_dir))
     size = shots[0].size
     width, height, scale = output_size(*size, max_size=s.max_size, downscale=s.downscale)
-    photos.check_memory(len(shots), size, (width, height), kept=(width, height), workers=WORKERS)
+    work = reduction(width, height, WORK_MAX_SIZE)
+    kept = scaled_size(width, height, work)
+    photos.check_memory(len(shots), size, kept, kept=kept, workers=photos.WORKERS)
     # The longest stage, and the progress bars show only on a terminal: say what it does.
     print(f'reading {len(shots)} photographs of {size[0]}x{size[1]} ({size[0] * size[1] / 1e6:.0f} MP) and '
-          f'finding the board in them, {WORKERS} at a time', flush=True)
-    detections, reduced = read_all(board, shots, (width, height))
+          f'finding the board in them, {photos.WORKERS} at a time', flush=True)
+    detections, reduced = read_all(board, shots, kept)
     left_out = {p.name: NO_CORNERS for p in shots if p.name not in detections}
     cal = calibrate(board, detections, size)
     left_out.update(cal.dropped)
-    K_out = pinhole_K(cal.K, scale)
-    images, valid = load_views(reduced, cal, (width, height), K_out)
+    K_work = pinhole_K(cal.K, scale * work)
+    images, valid = load_views(reduced, cal, kept, K_work)
     c2w = np.stack([v.c2w for v in cal.views])
     names = [v.name for v in cal.views]
     try:
-        reg = register(images, valid, K_out, c2w, board, s.container, s.size_mm, pose=s.container_pose)
+        reg = register(images, valid, K_work, c2w, board, s.container, s.size_mm, pose=s.container_pose)
     except ReneusError as e:
         # The user must see why: the overlays, with what each photograph showed.
         reg_failed = getattr(e, 'registration', None)
-        export.write_overlays(out, images, K_out, c2w, board, cal, s, measured=getattr(e, 'measured', None),
+        export.write_overlays(out, images, K_work, c2w, board, cal, s, measured=getattr(e, 'measured', None),
                                pose=reg_failed.pose if reg_failed else None)
         raise ReneusError(f'{e} (overlays in {os.path.join(out, "overlays")})') from None
     given = s
@@ -181,24 +187,36 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     if crop:
         (width, height), K_out, box = crop_to_coverage(cal, cover, K_out, (width, height))
         cover = dataclasses.replace(cover, crop=box)
+        kept = scaled_size(width, height, work)
     elif cover.extrapolated_px > EXTRAPOLATION_WARN_PX:
         warnings.warn(f'the board covered {cover.share:.0%} of the frame; beyond it the lens model is '
                       f'uncertain by up to {cover.extrapolated_px:.1f} px (at x={cover.worst[0]:.0f}, '
                       f'y={cover.worst[1]:.0f}), and so are the dataset\'s pixels there: take photographs '
                       'with the board in the frame\'s corners too, or crop to what it covered (--crop-to-coverage)')
+    K_work = np.diag([work, work, 1.0]) @ K_out
     names = [v.name for v in cal.views]
-    images, valid = load_views(reduced, cal, (width, height), K_out)
+    images, valid = load_views(reduced, cal, kept, K_work)
     c2w = np.stack([v.c2w for v in cal.views])
-    reg = register(images, valid, K_out, c2w, board, s.container, given.size_mm, pose=s.container_pose,
+    reg = register(images, valid, K_work, c2w, board, s.container, given.size_mm, pose=s.container_pose,
                    start=reg.pose)
     if reg.size_measured:
         s = dataclasses.replace(s, size_mm=reg.best_size)
-    light = measure(images, valid, K_out, c2w, board, reg.measured, names)
-    _warn_uncovered(names, valid, K_out, c2w, s, reg.pose)
+    light = measure(images, valid, K_work, c2w, board, reg.measured, names)
+    _warn_uncovered(names, valid, K_work, c2w, s, reg.pose)
     # The overlays first: a transforms.json, written last, says that the dataset is whole.
-    export.write_overlays(out, images, K_out, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
+    export.write_overlays(out, images, K_work, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
-    report = export.write(out, s, board, cal, K_out, light.normalise(images), reg, light, left_out, cover,
+    del images, valid
+    windows = container_windows(s.container, s.size_mm, reg.pose, K_out, c2w, (width, height))
+    by_name = {p.name: p for p in shots}
+
+    def lens_of(v):
+        """A view's photograph: the working copy where the dataset is no finer, else decoded again."""
+        name = cal.views[v].name
+        rgb = reduced[name] if work == 1.0 else photos.decode(by_name[name])
+        return rgb, np.diag([rgb.shape[1] / cal.width, rgb.shape[0] / cal.height, 1.0]) @ cal.K, cal.dist
+    views = CroppedViews(windows, K_out, lens_of, light.factors)
+    report = export.write(out, s, board, cal, K_out, (width, height), views, reg, light, left_out, cover,
                           photos.camera_exif(shots[0].path), given=given)
     report['seconds'] = time.perf_counter() - start
     return report
