@@ -12,7 +12,8 @@ Python of a venv that has the ``bpy`` wheel, not the project's::
     python3.11 -m venv /work/venvs/bpy && /work/venvs/bpy/bin/pip install bpy==5.0.1 'numpy<2' \\
         'opencv-contrib-python-headless<4.12'
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH [--specimen ant|beetle|shell]
-        [--block small|large] [--size 960x640] [--views 48] [--spp N] [--seed S] [--ior 1.45] [--preview]
+        [--block small|large] [--size 960x640] [--board-factor K] [--views 48] [--spp N] [--seed S]
+        [--ior 1.45] [--preview]
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH --check
 
 It imports neither reneus_mi nor mitsuba (the bpy venv has numpy < 2); it borrows the mesh
@@ -29,13 +30,17 @@ world is the same turned 180 degrees about x, so that its z is up):
   ``(x, y, yaw)`` near its centre; caustics on, so its shadow and caustics fall on the print;
 - the specimen: procedural, one watertight surface (voxel remesh), diffuse with a noise
   albedo, hanging at mid-height: ``ant`` (head, thorax, gaster, six jointed legs 0.37-0.53
-  mm thick in the small block, elbowed antennae of 0.33 mm), ``beetle`` (broad oval body, six short stout legs),
-  ``shell`` (an ammonite-like coil, no thin parts);
+  mm thick in the small block, elbowed antennae of 0.33 mm), ``ant_thin`` (the same ant with legs
+  0.29-0.12 mm thick and antennae of 0.10-0.08 mm, remeshed at 0.014 mm), ``beetle`` (broad oval
+  body, six short stout legs), ``shell`` (an ammonite-like coil, no thin parts);
 - the cameras: rings of elevations between 20 and 70 degrees, turntable azimuths from a
   random start, a little aim jitter and roll, every third shot in portrait.
 
-Each view is rendered linear (EXR) as a pinhole frame a little larger than the photograph,
-then gets what a camera does, in numpy/OpenCV as simulate.py does it: lens distortion
+Each view is rendered linear (EXR) as a pinhole frame a little larger than the photograph
+(with ``--board-factor K``, for 12 megapixels and more: the frame at 1/K of the size, scaled up
+(bicubic), and the block's region, with a margin, at full size over it: a camera's pixels where
+the specimen is, a softer board, which the calibration measures all the same), then gets what a
+camera does, in numpy/OpenCV as simulate.py does it: lens distortion
 (k1, k2, p1, p2, k3) around an off-centre principal point, an exposure that drifts between
 shots, shot and read noise, the display curve (gamma 2.2) and JPEG. Pixel coordinates follow
 reneus-mi: the centre of the top-left pixel is at (0.5, 0.5), also in ``truth.json``'s K.
@@ -177,11 +182,17 @@ def limb(points, radii, per_segment: int = 6, sides: int = 12, limbs: list | Non
     return parts
 
 
-def ant(limbs: list | None = None):
+#: Radii (unit) of the ant's leg joints and of its antenna's: the ant of the first captures,
+#: and a thin-legged one (legs 0.29-0.12 mm thick, antennae 0.10-0.08 mm, at 12 mm long).
+ANT_RADII = {'ant': dict(leg=(0.024, 0.022, 0.019, 0.017), antenna=(0.016, 0.015, 0.016), club=0.022),
+             'ant_thin': dict(leg=(0.013, 0.011, 0.008, 0.0055), antenna=(0.0045, 0.004, 0.0036), club=0.006)}
+
+
+def ant(limbs: list | None = None, radii: dict = ANT_RADII['ant']):
     """Gaster, petiole, thorax and head; six legs that go out and up to the knee, then out and
-    down; elbowed antennae. Legs 0.048-0.034 of the unit thick (fitted to a length of 12 mm:
-    0.53 mm at the femur, 0.37 mm at the tarsus), antennae 0.03 (0.33 mm). ``limbs``: see
-    :func:`limb`."""
+    down; elbowed antennae. ``radii``: the legs' and antennae's (:data:`ANT_RADII`; the first
+    ant's legs 0.048-0.034 of the unit thick, fitted to a length of 12 mm: 0.53 mm at the femur,
+    0.37 mm at the tarsus, antennae 0.03: 0.33 mm). ``limbs``: see :func:`limb`."""
     parts = [ellipsoid((-0.30, 0.0, 0.03), (0.20, 0.135, 0.125)),
              ellipsoid((-0.075, 0.0, 0.05), (0.035, 0.03, 0.05)),
              bs.tube(bs.segment((-0.14, 0.0, 0.04), (0.0, 0.0, 0.045), 6), 0.022, sides=12),
@@ -194,7 +205,7 @@ def ant(limbs: list | None = None):
             knee = a + [0.5 * reach, side * 0.19, 0.09]
             ankle = knee + [0.8 * reach, side * 0.11, -0.23]
             foot = ankle + [0.4 * reach, side * 0.07, -0.05]
-            parts += limb([a, knee, ankle, foot], [0.024, 0.022, 0.019, 0.017], limbs=limbs,
+            parts += limb([a, knee, ankle, foot], list(radii['leg']), limbs=limbs,
                           name=f"{'hind middle fore'.split()[pair]} leg {'left' if side < 0 else 'right'}")
         # Mandible and antenna (scape up and out, funiculus forward, a club at its tip).
         parts.append(bs.tube(bs.segment((0.39, side * 0.03, 0.04), (0.45, side * 0.012, 0.035), 5),
@@ -202,9 +213,9 @@ def ant(limbs: list | None = None):
         base = np.array([0.38, side * 0.035, 0.09])
         elbow = base + [0.03, side * 0.07, 0.11]
         tip = elbow + [0.16, side * 0.07, -0.02]
-        parts += limb([base, elbow, tip], [0.016, 0.015, 0.016], limbs=limbs,
+        parts += limb([base, elbow, tip], list(radii['antenna']), limbs=limbs,
                       name=f"antenna {'left' if side < 0 else 'right'}")
-        parts.append(bs.sphere(tip, 0.022, rings=6))
+        parts.append(bs.sphere(tip, radii['club'], rings=6))
     return parts
 
 
@@ -234,9 +245,12 @@ def shell(limbs: list | None = None):
     return [bs.tube(pts, tube_r, sides=28), bs.sphere(pts[-1], 0.98 * tube_r[-1], rings=14)]
 
 
-#: Specimens: parts and albedo palette (linear RGB, noise value 0 -> 1).
+#: Specimens: parts, albedo palette (linear RGB, noise value 0 -> 1) and, where the parts are
+#: thinner than blender_set's VOXEL keeps, the remesh's voxel (unit).
 SPECIMENS = {
     'ant': dict(make=ant, palette=((0.10, 0.04, 0.02), (0.40, 0.16, 0.05), (0.65, 0.42, 0.18))),
+    'ant_thin': dict(make=lambda limbs=None: ant(limbs, ANT_RADII['ant_thin']), voxel=0.0012,
+                     palette=((0.10, 0.04, 0.02), (0.40, 0.16, 0.05), (0.65, 0.42, 0.18))),
     'beetle': dict(make=beetle, palette=((0.03, 0.10, 0.05), (0.15, 0.35, 0.12), (0.55, 0.45, 0.10))),
     'shell': dict(make=shell, palette=((0.35, 0.18, 0.08), (0.72, 0.60, 0.42), (0.88, 0.82, 0.70))),
 }
@@ -456,7 +470,7 @@ def make_specimen(rig: dict) -> tuple[np.ndarray, np.ndarray]:
     # The limbs' joints move with the parts (inside them, they leave the bounding box alone).
     fitted = bs.fit(parts + [(joints, np.zeros((0, 3), int)) for _, joints, _ in limbs], (0.5, 0.5, 0.5))
     parts, joints = fitted[:len(parts)], [v for v, _ in fitted[len(parts):]]
-    ob, V, F = bs.object_mesh(rig['specimen'], parts, spec['palette'])
+    ob, V, F = bs.object_mesh(rig['specimen'], parts, spec['palette'], spec.get('voxel', bs.VOXEL))
     W, D, H = rig['size_mm']
     length = SPECIMEN_SHARE * W
     c, s = math.cos(math.radians(SPECIMEN_YAW)), math.sin(math.radians(SPECIMEN_YAW))
@@ -492,22 +506,28 @@ def make_container(rig: dict) -> bpy.types.Object:
 
 
 def make_camera(sc, K_r: np.ndarray, size: tuple[int, int]) -> bpy.types.Object:
-    """A perspective camera equal to the pinhole frame K_r (size pixels): horizontal sensor
-    fit, the principal point by lens shift (in units of the width)."""
-    w, h = size
-    sc.render.resolution_x, sc.render.resolution_y = w, h
-    sc.render.pixel_aspect_x = sc.render.pixel_aspect_y = 1.0
+    """A perspective camera equal to the pinhole frame K_r (size pixels) (:func:`frame_camera`)."""
     data = bpy.data.cameras.new('camera')
     data.sensor_fit, data.sensor_width = 'HORIZONTAL', 36.0
-    data.lens = K_r[0, 0] * data.sensor_width / w
-    # A positive shift moves the frame right / up: the axis appears left of / below the centre.
-    data.shift_x = (0.5 * w - K_r[0, 2]) / w
-    data.shift_y = (K_r[1, 2] - 0.5 * h) / w
     data.clip_start, data.clip_end = 1.0, 1.0e4
     cam = bpy.data.objects.new('camera', data)
     sc.collection.objects.link(cam)
     sc.camera = cam
+    frame_camera(sc, cam, K_r, size)
     return cam
+
+
+def frame_camera(sc, cam, K_r: np.ndarray, size: tuple[int, int]) -> None:
+    """Make the camera the pinhole K_r of ``size`` pixels: horizontal sensor fit, the principal
+    point by lens shift (in units of the width)."""
+    w, h = size
+    sc.render.resolution_x, sc.render.resolution_y = w, h
+    sc.render.pixel_aspect_x = sc.render.pixel_aspect_y = 1.0
+    data = cam.data
+    data.lens = K_r[0, 0] * data.sensor_width / w
+    # A positive shift moves the frame right / up: the axis appears left of / below the centre.
+    data.shift_x = (0.5 * w - K_r[0, 2]) / w
+    data.shift_y = (K_r[1, 2] - 0.5 * h) / w
 
 
 def place_camera(cam, c2w: np.ndarray) -> None:
@@ -528,6 +548,44 @@ def check_camera(sc, cam, K_r: np.ndarray, c2w: np.ndarray, points: np.ndarray) 
         q = world_to_camera_view(sc, cam, Vector(FLIP[:3, :3] @ p))
         theirs.append((q.x * w, (1.0 - q.y) * h))                # from the bottom-left corner
     return float(np.abs(ours - np.array(theirs)).max())
+
+
+#: --board-factor: margin of the block's region rendered at full size, as a share of its
+#: projection's larger side (and at least REGION_MARGIN_PX pixels).
+REGION_MARGIN, REGION_MARGIN_PX = 0.08, 16
+
+
+def block_region(c2w: np.ndarray, K_r: np.ndarray, frame: tuple[int, int], corners: np.ndarray):
+    """x0, y0, x1, y1: the block's projection (its ``corners``, board frame) in the pinhole
+    frame, with a margin, within the frame."""
+    w2c = np.linalg.inv(c2w)
+    cam = corners @ w2c[:3, :3].T + w2c[:3, 3]
+    px = cam[:, :2] / cam[:, 2:] @ np.diag([K_r[0, 0], K_r[1, 1]]) + K_r[:2, 2]
+    lo, hi = px.min(axis=0), px.max(axis=0)
+    margin = max(REGION_MARGIN * (hi - lo).max(), REGION_MARGIN_PX)
+    x0, y0 = np.maximum(np.floor(lo - margin), 0).astype(int)
+    x1, y1 = np.minimum(np.ceil(hi + margin), frame).astype(int)
+    return int(x0), int(y0), int(x1), int(y1)
+
+
+def render_view(sc, cam, rig: dict, K_r: np.ndarray, frame: tuple[int, int], c2w: np.ndarray,
+                folder: str, seed: int) -> np.ndarray:
+    """One view's pinhole frame, linear: rendered whole, or (``board_factor`` K > 1) at 1/K and
+    scaled up, with the block's region rendered at full size over it."""
+    k = rig['board_factor']
+    place_camera(cam, c2w)
+    if k == 1:
+        return render_linear(sc, folder, seed)
+    frame_camera(sc, cam, np.diag([1.0 / k, 1.0 / k, 1.0]) @ K_r, (frame[0] // k, frame[1] // k))
+    # cv2.resize by an integer factor keeps the pinhole: pixel centre u maps to u * k.
+    linear = np.clip(cv2.resize(render_linear(sc, folder, seed), frame, interpolation=cv2.INTER_CUBIC), 0.0, None)
+    x0, y0, x1, y1 = block_region(c2w, K_r, frame, rig['block_corners'])
+    K_region = np.array(K_r, np.float64)
+    K_region[:2, 2] -= (x0, y0)
+    frame_camera(sc, cam, K_region, (x1 - x0, y1 - y0))
+    linear[y0:y1, x0:x1] = render_linear(sc, folder, seed + 7919)
+    frame_camera(sc, cam, K_r, frame)
+    return linear
 
 
 def render_linear(sc, folder: str, seed: int) -> np.ndarray:
@@ -566,6 +624,7 @@ def make_rig(args) -> dict:
                 container='box', ior=args.ior, pose=[round(float(v), 3) for v in pose],
                 specimen=args.specimen, width=width, height=height, K=K, distortion=list(DISTORTION),
                 views=args.views, distance_mm=float(K[0, 0] * max(board_w, board_h) / (BOARD_SPAN * width)),
+                board_factor=args.board_factor,
                 spp=args.spp, adaptive_threshold=ADAPTIVE_THRESHOLD, seed=args.seed, rng=rng)
 
 
@@ -597,12 +656,22 @@ def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
     Vc, Fc = box_mesh(rig['size_mm'], rig['pose'])
     bs.write_ply(os.path.join(truth, 'container.ply'), Vc, Fc)
     K_r, frame = pinhole_frame(K, dist, width, height)
+    k = rig['board_factor']
+    frame = (k * math.ceil(frame[0] / k), k * math.ceil(frame[1] / k))
+    rig['block_corners'] = Vc
     cam = make_camera(sc, K_r, frame)
     maps = distortion_maps(K, dist, K_r, width, height)
     cols, rows = rig['squares']
     board_pts = np.array([[x, y, 0.0] for x in (0.0, cols * rig['square_mm']) for y in (0.0, rows * rig['square_mm'])])
     camera_error = max(check_camera(sc, cam, K_r, c, board_pts) for c in c2w)
-    if camera_error > 1e-3:
+    if k > 1:      # the region's camera, as render_view frames it, on the block's corners
+        x0, y0, x1, y1 = block_region(c2w[0], K_r, frame, Vc)
+        K_region = np.array(K_r, np.float64)
+        K_region[:2, 2] -= (x0, y0)
+        frame_camera(sc, cam, K_region, (x1 - x0, y1 - y0))
+        camera_error = max(camera_error, check_camera(sc, cam, K_region, c2w[0], Vc))
+        frame_camera(sc, cam, K_r, frame)
+    if camera_error > 1e-3 * max(1.0, width / SIZE[0]):     # Blender's float32 lens, larger frames
         sys.exit(f"error: Blender's camera projects the board's corners {camera_error:.4f} px from K_r")
     setup_seconds = time.perf_counter() - start
     print(f"{rig['specimen']} in the {rig['block']} block ({len(V)} vertices), {len(chosen)} views of "
@@ -612,9 +681,8 @@ def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
     views, seconds = [], []
     with tempfile.TemporaryDirectory(prefix='.render_', dir=truth) as scratch:
         for n, i in enumerate(chosen):
-            place_camera(cam, c2w[i])
             t0 = time.perf_counter()
-            linear = render_linear(sc, scratch, seed=rig['seed'] * 1000 + int(i))
+            linear = render_view(sc, cam, rig, K_r, frame, c2w[i], scratch, seed=rig['seed'] * 1000 + int(i))
             seconds.append(time.perf_counter() - t0)
             photo = cv2.remap(linear, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             photo = expose(photo, float(gains[i]), rng)
@@ -628,6 +696,7 @@ def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
     bs.write_json(os.path.join(photos, 'capture.json'), capture_settings(rig))
     W, D, H = rig['size_mm']
     limbs = rig.pop('limbs')
+    rig.pop('block_corners')
     result = {'rig': {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in rig.items()},
               'K': K.tolist(), 'distortion': list(dist), 'width': width, 'height': height, 'views': views,
               'container': {'shape': 'box', 'size_mm': [W, D, H], 'pose': list(rig['pose']), 'mesh': 'container.ply'},
@@ -638,6 +707,7 @@ def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
               'render': {'threads': THREADS, 'spp': rig['spp'], 'adaptive_threshold': ADAPTIVE_THRESHOLD,
                          'denoiser': sc.cycles.denoiser, 'denoising_quality': DENOISING_QUALITY,
                          'denoising_prefilter': sc.cycles.denoising_prefilter, 'pinhole_frame': list(frame), 'K_pinhole': K_r.tolist(),
+                         'board_factor': k,
                          'setup_seconds': setup_seconds, 'seconds_per_view': float(np.mean(seconds)),
                          'seconds': [round(s, 2) for s in seconds], 'wall_seconds': time.perf_counter() - start,
                          'camera_check_px': camera_error}}
@@ -743,6 +813,9 @@ def main(argv=None) -> None:
     parser.add_argument('--block', choices=list(BLOCKS), default='small',
                         help='small: 40x30x22 mm on a 10x7 board of 24 mm; large: 60x45x30 mm on 12x9 of 25 mm')
     parser.add_argument('--size', default='x'.join(map(str, SIZE)), help='photograph size WxH (default: %(default)s)')
+    parser.add_argument('--board-factor', type=int, default=1, metavar='K',
+                        help='render the frame at 1/K of --size, scaled up, and only the block\'s region at '
+                             'full size (12 MP and more in reasonable time; default: %(default)s, all at full size)')
     parser.add_argument('--views', type=int, default=48)
     parser.add_argument('--spp', type=int, default=SPP, help='Cycles samples per pixel, at most (adaptive)')
     parser.add_argument('--ior', type=float, default=IOR)

@@ -528,10 +528,10 @@ def glass_material(ior: float = IOR, absorption=None, name: str = 'glass') -> bp
     return mat
 
 
-def object_mesh(name: str, parts, palette) -> tuple[bpy.types.Object, np.ndarray, np.ndarray]:
-    """The parts as one Blender object, voxel-remeshed into a single watertight surface and
-    triangulated (so that the ground truth is the rendered geometry). Returns the object,
-    its vertices and triangles."""
+def object_mesh(name: str, parts, palette, voxel: float = VOXEL) -> tuple[bpy.types.Object, np.ndarray, np.ndarray]:
+    """The parts as one Blender object, voxel-remeshed (``voxel``: the voxel's side, in the
+    parts' units) into a single watertight surface and triangulated (so that the ground truth
+    is the rendered geometry). Returns the object, its vertices and triangles."""
     V = np.concatenate([v for v, _ in parts])
     offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
     F = np.concatenate([f + o for (_, f), o in zip(parts, offsets)])
@@ -540,7 +540,7 @@ def object_mesh(name: str, parts, palette) -> tuple[bpy.types.Object, np.ndarray
     ob = bpy.data.objects.new(name, raw)
     bpy.context.scene.collection.objects.link(ob)
     remesh = ob.modifiers.new('remesh', 'REMESH')
-    remesh.mode, remesh.voxel_size, remesh.adaptivity = 'VOXEL', VOXEL, 0.0
+    remesh.mode, remesh.voxel_size, remesh.adaptivity = 'VOXEL', voxel, 0.0
     me = bpy.data.meshes.new_from_object(ob.evaluated_get(bpy.context.evaluated_depsgraph_get()))
     ob.modifiers.clear()
     ob.data = me

@@ -7,7 +7,9 @@ model's). Cameras of COLMAP's pinhole and OpenCV families (SIMPLE_PINHOLE, PINHO
 SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV without its rational terms) are undistorted by
 :func:`reneus_mi.data.undistort.undistort` to pinhole cameras. COLMAP's pixel convention
 is reneus-mi's (the top-left pixel's centre at (0.5, 0.5)) and its cameras have OpenCV's
-axes, so poses are taken as they are: ``c2w = cam_from_world⁻¹``.
+axes, so poses are taken as they are: ``c2w = cam_from_world⁻¹``. As the capture's, the
+dataset keeps of each photograph the window around the container
+(:mod:`reneus_mi.capture.crops`).
 
 The command (:mod:`reneus_mi.colmap`)::
 
@@ -22,9 +24,10 @@ import shutil
 import numpy as np
 
 from reneus_mi.capture import photos
+from reneus_mi.capture.crops import CroppedViews, container_windows
 from reneus_mi.capture.export import write_views
 from reneus_mi.data.checks import check_ior
-from reneus_mi.data.undistort import distortion, output_size, pinhole_K, undistort
+from reneus_mi.data.undistort import distortion, output_size, pinhole_K
 from reneus_mi.geometry.container import load_container, mesh_type
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError
@@ -85,7 +88,7 @@ def convert(sparse: str, images_dir: str, container: str, ior: float, out: str, 
     """Write a dataset from a COLMAP model; returns the number of views."""
     out = guards.check_output_dir(out, inputs=[sparse, images_dir, container], what='dataset folder')
     mesh_type(container)
-    load_container(container)
+    mesh = load_container(container)
     check_ior(ior, '--ior')
     model = read_model(sparse)
     views = sorted((im for im in model.images.values() if im.has_pose), key=lambda im: im.name)
@@ -116,17 +119,18 @@ def convert(sparse: str, images_dir: str, container: str, ior: float, out: str, 
     if len(set(names)) != len(names):
         raise ReneusError(f'{sparse}: image names repeat once their folders are dropped; expected distinct names')
     width, height, scale = output_size(*size, max_size=max_size, downscale=downscale)
-    photos.check_memory(len(files), size, (width, height))
-    images, Ks = [], []
-    for path, (K, dist) in zip(files, lenses):
-        K_out = pinhole_K(K, scale)
-        rgb = photos.decode(photos.header(path))
-        images.append(undistort(rgb, K, dist, K_out, (width, height))[0].astype(np.float32) / 255.0)
-        Ks.append(K_out)
+    K_frame = np.stack([pinhole_K(K, scale) for K, _ in lenses])
+    hull = np.asarray(mesh.convex_hull.vertices)
+    windows = container_windows(hull, K_frame, np.stack(c2ws), (width, height))
+    photos.check_memory(len(files), size, windows.size, workers=photos.WORKERS)
+
+    def lens_of(v):
+        return (photos.decode(photos.header(files[v])), *lenses[v])
     os.makedirs(out, exist_ok=True)
     name = 'container' + os.path.splitext(container)[1].lower()
     shutil.copyfile(container, os.path.join(out, name))
-    write_views(out, names, np.stack(images), np.stack(Ks), np.stack(c2ws),
+    write_views(out, names, CroppedViews(windows, K_frame, lens_of),
+                np.stack([windows.K(K_frame, v) for v in range(len(names))]), np.stack(c2ws),
                 {'IOR': float(ior), 'mesh_outside': name, 'source': f'COLMAP model {os.path.abspath(sparse)}'},
                 [{'photo': os.path.basename(f)} for f in files])
     return len(names)

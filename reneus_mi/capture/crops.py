@@ -21,7 +21,6 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from reneus_mi.capture.register import Outline
 from reneus_mi.data.undistort import undistort
 
 #: Longest side in pixels of the copies the capture registers the container on and measures the
@@ -43,23 +42,28 @@ class Windows:
     corners: np.ndarray
 
     def K(self, K_frame: np.ndarray, view: int) -> np.ndarray:
-        """The intrinsics of view ``view``'s window, from those of the uncropped frame."""
-        K = np.array(K_frame, np.float64)
+        """The intrinsics of view ``view``'s window, from those of the uncropped frame (one
+        (3,3) for all views or (N,3,3))."""
+        K = np.array(K_frame if np.ndim(K_frame) == 2 else K_frame[view], np.float64)
         K[:2, 2] -= self.corners[view]
         return K
 
 
-def container_windows(shape: str, size_mm, pose, K_frame: np.ndarray, c2w: np.ndarray,
+def container_windows(points: np.ndarray, K_frame: np.ndarray, c2w: np.ndarray,
                       frame: tuple[int, int]) -> Windows:
-    """Windows around the container's projection in every view of a frame of ``frame``
-    (width, height) pixels: the largest of its bounding boxes grown by :data:`CROP_MARGIN`,
-    centred on each view's box and moved inside the frame (at most the frame itself)."""
-    outline = Outline(shape, size_mm, K_frame, c2w)
+    """Windows around the projection of the container's ``points`` (world; its convex hull's
+    vertices are enough) in every view of a frame of ``frame`` (width, height) pixels, seen
+    through ``K_frame`` (one or one per view): the largest of the bounding boxes grown by
+    :data:`CROP_MARGIN`, centred on each view's box and moved inside the frame (at most the
+    frame itself)."""
+    w2c = np.linalg.inv(c2w)
     boxes = []
     for v in range(len(c2w)):
-        poly = outline.polygon(pose, v)
-        lo, hi = poly.min(axis=0), poly.max(axis=0)
-        boxes.append((lo, hi))
+        K = K_frame if np.ndim(K_frame) == 2 else K_frame[v]
+        cam = points @ w2c[v, :3, :3].T + w2c[v, :3, 3]
+        uv = cam @ K.T
+        px = uv[:, :2] / np.maximum(uv[:, 2:], 1e-9)
+        boxes.append((px.min(axis=0), px.max(axis=0)))
     extent = np.max([hi - lo for lo, hi in boxes], axis=0)
     grown = extent + 2.0 * CROP_MARGIN * extent.max()
     size = np.minimum(np.ceil(grown).astype(int), frame)
@@ -75,9 +79,9 @@ class CroppedViews(Sequence):
     display values, its exposure normalised), computed when asked for."""
 
     def __init__(self, windows: Windows, K_frame: np.ndarray, lens_of: Callable[[int], tuple],
-                 factors: np.ndarray):
+                 factors: np.ndarray | None = None):
         """``lens_of(v)``: view ``v``'s photograph (H,W,3 uint8), its intrinsics and its
-        distortion; ``factors``: each view's exposure normalisation (display values)."""
+        distortion; ``factors``: each view's exposure normalisation (display values; None: 1)."""
         self.windows, self.K_frame, self.lens_of, self.factors = windows, K_frame, lens_of, factors
 
     def __len__(self) -> int:
@@ -86,4 +90,5 @@ class CroppedViews(Sequence):
     def __getitem__(self, view: int) -> np.ndarray:
         rgb, K, dist = self.lens_of(view)
         image, _ = undistort(rgb, K, dist, self.windows.K(self.K_frame, view), self.windows.size)
-        return image.astype(np.float32) * np.float32(self.factors[view] / 255.0)
+        factor = 1.0 if self.factors is None else self.factors[view]
+        return image.astype(np.float32) * np.float32(factor / 255.0)

@@ -207,7 +207,8 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     export.write_overlays(out, images, K_work, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
     del images, valid
-    windows = container_windows(s.container, s.size_mm, reg.pose, K_out, c2w, (width, height))
+    hull = np.asarray(board_mesh(s.container, s.size_mm, reg.pose).convex_hull.vertices)
+    windows = container_windows(hull, K_out, c2w, (width, height))
     by_name = {p.name: p for p in shots}
 
     def lens_of(v):

@@ -436,8 +436,17 @@ def test_colmap_model_read_and_undistorted(tmp_path):
                         str(tmp_path / 'box.ply'), '--ior', '1.5', '-o', str(tmp_path / 'ds')]) == 0
     ds = load_dataset(str(tmp_path / 'ds'))
     np.testing.assert_allclose(ds.c2w, np.stack(c2ws), atol=1e-6)
-    np.testing.assert_allclose(ds.K[0], K, atol=1e-9)
+    # Each view a window around the container: the model's camera, moved by the window's corner.
+    assert ds.width < 160 and ds.height < 120 and ds.masks.any(axis=(1, 2)).all()
+    for v in range(2):
+        corner = K[:2, 2] - ds.K[v][:2, 2]
+        assert np.all(corner == np.round(corner)) and np.all(corner >= 0)
+        np.testing.assert_allclose(ds.K[v], K - np.pad(corner[:, None], ((0, 1), (2, 0))), atol=1e-9)
+    x0, y0 = (K[:2, 2] - ds.K[0][:2, 2]).astype(int)
+    window = pinhole[y0:y0 + ds.height, x0:x0 + ds.width]
     inner = np.zeros((120, 160), bool)
     inner[16:-16, 16:-16] = True
-    assert np.abs(ds.image(0)[..., 0] - pinhole)[inner].mean() < 0.01
+    inner = inner[y0:y0 + ds.height, x0:x0 + ds.width]
+    assert inner.mean() > 0.5
+    assert np.abs(ds.image(0)[..., 0] - window)[inner].mean() < 0.01
     assert ds.ior == 1.5
