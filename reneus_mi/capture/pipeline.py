@@ -51,6 +51,10 @@ from reneus_mi.utils.errors import ReneusError
 EXCLUSION_MARGIN_PX = 3.0
 
 
+#: Fewest views a dataset is made of: a reconstruction needs the container seen all around
+#: (the paper used 60; docs/capture.md asks for 40-80), and a lens calibrated from a handful
+#: of photographs is extrapolated over most of the frame.
+MIN_DATASET_VIEWS = 8
 #: Why a photograph without the board's corners is left out.
 NO_CORNERS = 'no board corners found (is the board in the picture, sharp and not too oblique?)'
 
@@ -182,6 +186,12 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     cal = calibrate(board, {n: detections[n] for n in names}, size, exclude=exclude)
     left_out.update({n: f'{r} (once the corners seen through the container were left out)'
                      for n, r in cal.dropped.items()})
+    if len(cal.views) < MIN_DATASET_VIEWS:
+        why = '; '.join(f'{n}: {r}' for n, r in list(left_out.items())[:2])
+        raise ReneusError(f'{os.path.abspath(photos_dir)}: {len(cal.views)} photographs can be used '
+                          f'({len(left_out)} left out{": " + why if why else ""}); expected at least '
+                          f'{MIN_DATASET_VIEWS}: the container seen all around, 40-80 photographs in three '
+                          'rings (docs/capture.md)')
     cover = coverage(board, cal)
     K_out = pinhole_K(cal.K, scale)
     if crop:

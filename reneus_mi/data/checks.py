@@ -163,19 +163,31 @@ def _check_masks(container, K, c2w, height, width, files, given_masks, sources, 
 #: radiance) is named: a dataset's photographs share one exposure, which the model assumes
 #: (a capture measures and normalises each photograph's own).
 EXPOSURE_OUTLIER = 1.5
+#: An overexposed photograph is clipped where the others are not, so its mean says less than
+#: its exposure: one with at least this share of its pixels at white more than the median
+#: photograph is named too.
+CLIPPED_OUTLIER = 0.05
+#: A value this close to 1 is clipped (an 8-bit 255).
+CLIPPED = 254.5 / 255.0
 
 
 def warn_exposure_outliers(images, files: list[str]) -> None:
-    """Warn, naming it and the factor, of each photograph whose exposure stands out."""
+    """Warn, naming it and the factor, of each photograph whose exposure stands out: its mean
+    linear value, or the share of it clipped at white."""
     if len(images) < 3:
         return
+    samples = [as_float(image[::4, ::4]) for image in images]
     # The mean: a median flips between a print's black and white with the framing.
-    level = np.array([np.mean(as_float(image[::4, ::4]) ** GAMMA) for image in images])
+    level = np.array([np.mean(sample ** GAMMA) for sample in samples])
+    clipped = np.array([np.mean(sample.max(axis=-1) >= CLIPPED) for sample in samples])
     typical = np.median(level)
     if not typical > 0:
         return
-    for factor, path in zip(level / typical, files):
+    expected = ('expected one exposure for all (manual exposure), or photographs that state their exposure: '
+                'the capture command measures each from the board')
+    for factor, share, path in zip(level / typical, clipped - np.median(clipped), files):
         if not 1.0 / EXPOSURE_OUTLIER <= factor <= EXPOSURE_OUTLIER:
-            warnings.warn(f'{path}: {factor:.2f}x as bright as the median photograph (mean linear value); '
-                          'expected one exposure for all (manual exposure), or photographs that state their '
-                          'exposure: the capture command measures each from the board')
+            warnings.warn(f'{path}: {factor:.2f}x as bright as the median photograph (mean linear value); {expected}')
+        elif share >= CLIPPED_OUTLIER:
+            warnings.warn(f'{path}: {share:.0%} more of it clipped at white than of the median photograph '
+                          f'(overexposed: {factor:.2f}x as bright in the mean, more in the light); {expected}')

@@ -733,13 +733,21 @@ def test_capture_photograph_without_corners_is_left_out(shots, tmp_path):
     assert {image.shape for image in reduced.values()} == {(240, 320, 3)}
 
 
+def test_capture_of_too_few_photographs_refused(shots, tmp_path):
+    """Three photographs: refused with how many can be used and how many a reconstruction
+    needs. Harmful before: a dataset of three views, the lens extrapolated by 22,827 px."""
+    photos = photo_copies(shots, tmp_path / 'photos', 3)
+    refused(capture.main, [photos, '-o', tmp_path / 'out', *CAPTURE], f'{photos}: 3 photographs can be used',
+            'expected at least 8', 'seen all around', watch=[photos])
+
+
 def test_capture_container_not_found_writes_the_overlays(shots, tmp_path):
     """A container stated 80 mm tall (it is 25): refused, with the overlays there to see why."""
-    photos = photo_copies(shots, tmp_path / 'photos', 6)
+    photos = photo_copies(shots, tmp_path / 'photos', 8)
     given = [x if x != '50x35x25' else '50x35x80' for x in CAPTURE]
     refused(capture.main, [photos, '-o', tmp_path / 'out', *given, '--max-size', 320],
             'container not found', 'check --size-mm', 'overlays in', watch=[photos])
-    assert len(os.listdir(tmp_path / 'out' / 'overlays')) == 6
+    assert len(os.listdir(tmp_path / 'out' / 'overlays')) == 8
     assert not os.path.exists(tmp_path / 'out' / 'transforms.json')
 
 
@@ -1160,12 +1168,12 @@ def test_ctrl_c_while_capture_writes(shots, tmp_path):
     out = tmp_path / 'out'
     # At 320 px the outline of the right container lies 2.1 px from the photographs, on the
     # edge of the not-found limit: this test is about the interrupt, so the photographs are larger.
-    args = [photo_copies(shots, tmp_path / 'photos', 6), '-o', out, *CAPTURE, '--max-size', 480, '--quiet']
+    args = [photo_copies(shots, tmp_path / 'photos', 8), '-o', out, *CAPTURE, '--max-size', 480, '--quiet']
     proc = start('capture', *args, tmp_path=tmp_path, pause=('reneus_mi.capture.export:write_overlays', SPIN))
     wait_for(proc, (tmp_path / 'paused').exists)
     assert ctrl_c(proc) == (f'interrupted: {out} holds no dataset yet (no transforms.json): '
                             'the same command replaces what it holds')
-    assert len(os.listdir(out / 'overlays')) == 6 and not temporaries(tmp_path)
+    assert len(os.listdir(out / 'overlays')) == 8 and not temporaries(tmp_path)
     assert capture.main([str(a) for a in args]) == 0
     assert (out / 'transforms.json').exists()
 
@@ -1589,6 +1597,20 @@ def test_dataset_photograph_of_another_exposure_named(data):
     with pytest.warns(UserWarning, match=r'r_003.png: 0\.5\dx as bright as the median photograph') as caught:
         load_dataset(str(data))
     assert sum('as bright as' in str(w.message) for w in caught) == 1
+
+
+def test_dataset_overexposed_photograph_named(data):
+    """One photograph at 1.8x the others' exposure: its light background clips, so that its
+    mean is barely brighter; the share clipped names it. Harmful before: trained on without a
+    word."""
+    from reneus_mi.data.images import read_image, write_image
+    path = data / 'images' / 'r_003.png'
+    rgb, alpha = read_image(str(path))
+    write_image(str(path), np.concatenate([np.clip(rgb ** 2.2 * 1.8, 0, 1) ** (1 / 2.2), alpha[..., None]], -1))
+    with pytest.warns(UserWarning, match=r'r_003.png: (\d+% more of it clipped at white|1\.\d+x as bright)') as caught:
+        load_dataset(str(data))
+    assert sum('r_003.png' in str(w.message) for w in caught) == 1
+    assert not any('r_00' in str(w.message) and 'r_003' not in str(w.message) for w in caught)
 
 
 @pytest.mark.parametrize('orientation, turn', [(6, 'turn it 90 degrees clockwise'), (3, 'turn it by 180 degrees')])
