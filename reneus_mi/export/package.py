@@ -7,6 +7,8 @@ Layout of ``PACKAGE`` (``--zip``: also ``PACKAGE.zip``)::
     NAME.ply              the mesh with vertex colours, in the run's units (a capture's:
                           millimetres in the board's frame)
     NAME.glb              the same for web viewers (glTF: metres, y up)
+    NAME_access.glb       where NAME.glb exceeds ACCESS_MAX_BYTES (20 MB): a simplified copy
+                          under it, for viewers and portals that limit uploads (and the page)
     NAME.html             the report page: the model to turn, with a scale bar, renders,
                           photographs, overlays, figures; self-contained (:mod:`reneus_mi.page`)
     NAME_watertight.ply   (--watertight) the mesh with its holes closed; metadata.json says
@@ -39,7 +41,7 @@ import trimesh
 import reneus_mi
 from reneus_mi.batch.batch_folder import BatchFolder
 from reneus_mi.data import load_dataset
-from reneus_mi.geometry.mesh import load_mesh
+from reneus_mi.geometry.mesh import decimated_glb, load_mesh
 from reneus_mi.geometry.surface import components
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.utils import guards
@@ -60,6 +62,9 @@ FORMULA_START = ('=', '+', '-', '@', '\t', '\r')
 CREATION_TECHNIQUE = ('3D surface reconstructed from photographs taken through the transparent container '
                       'that holds the specimen (ReNeuS, CVPR 2023: refraction and reflection at the '
                       "container's surfaces traced, a neural signed distance field fitted inside), with reneus-mi")
+#: Largest GLB a web viewer or portal is given (MorphoSource's 3D viewer and Sketchfab's free
+#: uploads work best below a few tens of MB): a larger master gets a simplified access copy.
+ACCESS_MAX_BYTES = 20 * 2 ** 20
 #: Largest side of the photographs read for the report page.
 PICTURE_SOURCE = 480
 #: The columns of record.csv, in order.
@@ -88,6 +93,9 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
     if os.path.isfile(folder.web_mesh):
         shutil.copyfile(folder.web_mesh, os.path.join(out, f'{name}.glb'))
         files['web_mesh'] = f'{name}.glb'
+        if os.path.getsize(folder.web_mesh) > ACCESS_MAX_BYTES:
+            access_faces = decimated_glb(folder.web_mesh, os.path.join(out, f'{name}_access.glb'), ACCESS_MAX_BYTES)
+            files['access_mesh'] = f'{name}_access.glb'
     closed = None
     if watertight:
         closed = _watertight(mesh)
@@ -109,6 +117,7 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
                  'size': (np.sort(mesh.bounding_box_oriented.primitive.extents)[::-1].round(4).tolist()
                           if len(mesh.faces) else None),
                  'vertices': len(mesh.vertices), 'faces': len(mesh.faces), 'pieces': components(mesh),
+                 **({'access_faces': access_faces} if 'access_mesh' in files else {}),
                  'watertight': bool(mesh.is_watertight), **({'watertight_variant': closed} if closed else {})},
         'paradata': {
             'capture': _capture(config.get('data')),
@@ -122,7 +131,8 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
     atomic_write_text(os.path.join(out, 'metadata.json'), json.dumps(metadata, indent=2, default=float))
     atomic_write_text(os.path.join(out, 'record.csv'), _record(metadata, name))
     write_page(os.path.join(out, f'{name}.html'), metadata, os.path.join(out, f'{name}.ply'),
-               os.path.join(out, files['web_mesh']) if 'web_mesh' in files else None, _dataset(config.get('data')))
+               os.path.join(out, files.get('access_mesh', files.get('web_mesh'))) if 'web_mesh' in files else None,
+               _dataset(config.get('data')))
     atomic_write_text(os.path.join(out, FIXITY), _fixity(out))
     return metadata
 

@@ -80,6 +80,25 @@ def write_glb(mesh: trimesh.Trimesh, colors: np.ndarray, path: str | os.PathLike
     atomic_export(out, path)
 
 
+def decimated_glb(source: str | os.PathLike, path: str | os.PathLike, max_bytes: int) -> int:
+    """Write a copy of the binary glTF ``source`` under ``max_bytes``: its surface simplified by
+    quadric edge collapse (``fast-simplification``, through trimesh), each vertex taking the
+    colour of the source's nearest; return its face count."""
+    from scipy.spatial import cKDTree
+    mesh = trimesh.load(source, file_type='glb', force='mesh', process=False)
+    colors = np.asarray(mesh.visual.vertex_colors, np.float64)[:, :3] / 255.0
+    size = os.path.getsize(source)
+    faces = len(mesh.faces)
+    while size > max_bytes:
+        # The file grows with the faces; a tenth spare for the vertices' share.
+        faces = max(4, int(faces * 0.9 * max_bytes / size))
+        small = mesh.simplify_quadric_decimation(face_count=faces)
+        _, nearest = cKDTree(mesh.vertices).query(small.vertices)
+        write_glb(small, colors[nearest], path)
+        size, faces = os.path.getsize(path), len(small.faces)
+    return faces
+
+
 def signed_volume(vertices, faces) -> float:
     """Volume enclosed by a closed triangle mesh, negative when its faces are wound inward.
 

@@ -69,6 +69,25 @@ def test_package_of_a_run(finished, tmp_path):
     assert float(row['extent_x']) == pytest.approx(theirs.extents[0], abs=1e-3)
 
 
+def test_large_model_gets_an_access_copy_under_the_limit(finished, tmp_path, monkeypatch):
+    """A GLB over the limit (here a fifth of this one's size) gets a simplified copy under it:
+    the same shape (its box to a percent), coloured, named in the metadata and the fixity."""
+    limit = os.path.getsize(finished / 'mesh.glb') // 5
+    monkeypatch.setattr(export, 'ACCESS_MAX_BYTES', limit)
+    out = tmp_path / 'package'
+    metadata = export.export_run(str(finished), str(out))
+    name = metadata['files']['access_mesh']
+    assert os.path.getsize(out / name) <= limit
+    full = trimesh.load(out / metadata['files']['web_mesh'], force='mesh', process=False)
+    small = trimesh.load(out / name, force='mesh', process=False)
+    assert metadata['mesh']['access_faces'] == len(small.faces) < len(full.faces) / 3
+    np.testing.assert_allclose(small.bounds, full.bounds, atol=0.02 * full.extents.max())
+    _, near = trimesh.proximity.ProximityQuery(full).vertex(small.vertices)
+    colours = np.asarray(small.visual.vertex_colors)[:, :3].astype(float)
+    assert np.abs(colours - np.asarray(full.visual.vertex_colors)[near, :3]).mean() < 8
+    assert name in (out / 'manifest-sha256.txt').read_text()
+
+
 def test_watertight_variant_says_what_it_closed(tmp_path):
     box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
     box.update_faces(np.arange(len(box.faces)) != 0)     # one triangle missing: one hole
