@@ -15,9 +15,12 @@ Python of a venv that has the ``bpy`` wheel, not the project's::
         [--block small|large] [--size 960x640] [--board-factor K] [--views 48] [--spp N] [--seed S]
         [--ior 1.45] [--preview]
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH --check
+    /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH --reduce-from SRC_PHOTOS SRC_TRUTH \
+        --size 960x640
 
 It imports neither reneus_mi nor mitsuba (the bpy venv has numpy < 2); it borrows the mesh
-helpers of ``bench/blender_set.py`` (tubes, voxel remesh, the glass block, Cycles' reset).
+helpers of ``bench/blender_set.py`` (tubes, limbs, the ant, voxel remesh, the glass block,
+Cycles' reset).
 
 The scene, in the board's frame (OpenCV ChArUco: origin at the outer corner of the first
 square, x along the columns, y along the rows, z into the table, millimetres; Blender's
@@ -161,76 +164,18 @@ FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
 
 # --- specimens (numpy parts, unit size; x forward, z up) -----------------------------------
 
-def ellipsoid(centre, semi, rings: int = 16):
-    """An ellipsoid of semi-axes ``semi`` (x, y, z): a scaled sphere of blender_set."""
-    V, F = bs.sphere((0.0, 0.0, 0.0), 1.0, rings)
-    return np.asarray(centre) + V * np.asarray(semi), F
-
-
-def limb(points, radii, per_segment: int = 6, sides: int = 12, limbs: list | None = None, name: str = ''):
-    """A jointed limb: a tube along the polyline ``points`` (joints), its radius going linearly
-    from joint to joint, with a ball at each inner joint. ``limbs``: where its axis is recorded
-    as ``(name, joints, radii)``, from the body out (the truth's legs and antennae)."""
-    if limbs is not None:
-        limbs.append((name, np.asarray(points, float), np.asarray(radii, float)))
-    pts, rad = [np.asarray(points[0], float)], [radii[0]]
-    for k in range(len(points) - 1):
-        pts += list(bs.segment(points[k], points[k + 1], per_segment + 1)[1:])
-        rad += list(np.linspace(radii[k], radii[k + 1], per_segment + 1)[1:])
-    parts = [bs.tube(np.array(pts), np.array(rad), sides=sides)]
-    parts += [bs.sphere(points[k], 1.1 * radii[k], rings=6) for k in range(1, len(points) - 1)]
-    return parts
-
-
-#: Radii (unit) of the ant's leg joints and of its antenna's: the ant of the first captures,
-#: and a thin-legged one (legs 0.29-0.12 mm thick, antennae 0.10-0.08 mm, at 12 mm long).
-ANT_RADII = {'ant': dict(leg=(0.024, 0.022, 0.019, 0.017), antenna=(0.016, 0.015, 0.016), club=0.022),
-             'ant_thin': dict(leg=(0.013, 0.011, 0.008, 0.0055), antenna=(0.0045, 0.004, 0.0036), club=0.006)}
-
-
-def ant(limbs: list | None = None, radii: dict = ANT_RADII['ant']):
-    """Gaster, petiole, thorax and head; six legs that go out and up to the knee, then out and
-    down; elbowed antennae. ``radii``: the legs' and antennae's (:data:`ANT_RADII`; the first
-    ant's legs 0.048-0.034 of the unit thick, fitted to a length of 12 mm: 0.53 mm at the femur,
-    0.37 mm at the tarsus, antennae 0.03: 0.33 mm). ``limbs``: see :func:`limb`."""
-    parts = [ellipsoid((-0.30, 0.0, 0.03), (0.20, 0.135, 0.125)),
-             ellipsoid((-0.075, 0.0, 0.05), (0.035, 0.03, 0.05)),
-             bs.tube(bs.segment((-0.14, 0.0, 0.04), (0.0, 0.0, 0.045), 6), 0.022, sides=12),
-             ellipsoid((0.10, 0.0, 0.05), (0.135, 0.058, 0.062)),
-             bs.tube(bs.segment((0.2, 0.0, 0.05), (0.28, 0.0, 0.055), 5), 0.03, sides=12),
-             ellipsoid((0.335, 0.0, 0.06), (0.085, 0.075, 0.065))]
-    for side in (-1.0, 1.0):
-        for pair, (x, reach) in enumerate(((0.03, -0.16), (0.10, -0.02), (0.17, 0.13))):
-            a = np.array([x, side * 0.045, 0.02])
-            knee = a + [0.5 * reach, side * 0.19, 0.09]
-            ankle = knee + [0.8 * reach, side * 0.11, -0.23]
-            foot = ankle + [0.4 * reach, side * 0.07, -0.05]
-            parts += limb([a, knee, ankle, foot], list(radii['leg']), limbs=limbs,
-                          name=f"{'hind middle fore'.split()[pair]} leg {'left' if side < 0 else 'right'}")
-        # Mandible and antenna (scape up and out, funiculus forward, a club at its tip).
-        parts.append(bs.tube(bs.segment((0.39, side * 0.03, 0.04), (0.45, side * 0.012, 0.035), 5),
-                             np.linspace(0.018, 0.008, 5), sides=10))
-        base = np.array([0.38, side * 0.035, 0.09])
-        elbow = base + [0.03, side * 0.07, 0.11]
-        tip = elbow + [0.16, side * 0.07, -0.02]
-        parts += limb([base, elbow, tip], list(radii['antenna']), limbs=limbs,
-                      name=f"antenna {'left' if side < 0 else 'right'}")
-        parts.append(bs.sphere(tip, radii['club'], rings=6))
-    return parts
-
-
 def beetle(limbs: list | None = None):
     """A broad oval body (elytra, pronotum, head) on six short stout legs, short antennae."""
-    parts = [ellipsoid((-0.12, 0.0, 0.06), (0.32, 0.23, 0.13), rings=24),
-             ellipsoid((0.23, 0.0, 0.05), (0.11, 0.18, 0.09)),
-             ellipsoid((0.37, 0.0, 0.03), (0.07, 0.10, 0.06))]
+    parts = [bs.ellipsoid((-0.12, 0.0, 0.06), (0.32, 0.23, 0.13), rings=24),
+             bs.ellipsoid((0.23, 0.0, 0.05), (0.11, 0.18, 0.09)),
+             bs.ellipsoid((0.37, 0.0, 0.03), (0.07, 0.10, 0.06))]
     for side in (-1.0, 1.0):
         for x, reach in ((-0.2, -0.12), (0.0, -0.02), (0.2, 0.1)):
             a = np.array([x, side * 0.12, -0.02])
             knee = a + [0.4 * reach, side * 0.17, -0.02]
             foot = knee + [0.6 * reach, side * 0.08, -0.13]
-            parts += limb([a, knee, foot], [0.05, 0.042, 0.035])
-        parts += limb([np.array([0.42, side * 0.05, 0.05]), np.array([0.48, side * 0.12, 0.07]),
+            parts += bs.limb([a, knee, foot], [0.05, 0.042, 0.035])
+        parts += bs.limb([np.array([0.42, side * 0.05, 0.05]), np.array([0.48, side * 0.12, 0.07]),
                        np.array([0.55, side * 0.16, 0.05])], [0.025, 0.022, 0.03])
     return parts
 
@@ -248,8 +193,8 @@ def shell(limbs: list | None = None):
 #: Specimens: parts, albedo palette (linear RGB, noise value 0 -> 1) and, where the parts are
 #: thinner than blender_set's VOXEL keeps, the remesh's voxel (unit).
 SPECIMENS = {
-    'ant': dict(make=ant, palette=((0.10, 0.04, 0.02), (0.40, 0.16, 0.05), (0.65, 0.42, 0.18))),
-    'ant_thin': dict(make=lambda limbs=None: ant(limbs, ANT_RADII['ant_thin']), voxel=0.0012,
+    'ant': dict(make=bs.ant, palette=((0.10, 0.04, 0.02), (0.40, 0.16, 0.05), (0.65, 0.42, 0.18))),
+    'ant_thin': dict(make=lambda limbs=None: bs.ant(limbs, bs.ANT_RADII['ant_thin']), voxel=0.0012,
                      palette=((0.10, 0.04, 0.02), (0.40, 0.16, 0.05), (0.65, 0.42, 0.18))),
     'beetle': dict(make=beetle, palette=((0.03, 0.10, 0.05), (0.15, 0.35, 0.12), (0.55, 0.45, 0.10))),
     'shell': dict(make=shell, palette=((0.35, 0.18, 0.08), (0.72, 0.60, 0.42), (0.88, 0.82, 0.70))),
@@ -802,6 +747,33 @@ def report_check(photos: str, truth: str) -> dict:
     return result
 
 
+def reduce_capture(src_photos: str, src_truth: str, photos: str, truth: str, size: tuple[int, int]) -> None:
+    """The capture ``src_*`` as a camera of ``size`` pixels (the same lens and cameras) would
+    have taken it: each photograph decoded, area-averaged and written as a JPEG again (its
+    noise averaged too: milder than a small sensor's), the truth's K scaled."""
+    photos, truth = _empty_dir(photos, 'photographs folder'), _empty_dir(truth, 'ground-truth folder')
+    with open(os.path.join(src_truth, 'truth.json')) as f:
+        meta = json.load(f)
+    scale = np.array([size[0] / meta['width'], size[1] / meta['height']])
+    if abs(scale[0] - scale[1]) > 1e-3:
+        sys.exit(f"error: {size[0]}x{size[1]} is not the shape of {meta['width']}x{meta['height']}")
+    for view in meta['views']:
+        image = cv2.imread(os.path.join(src_photos, view['name']))
+        small = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+        ok, data = cv2.imencode('.jpg', small, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        bs._atomic_bytes(os.path.join(photos, view['name']), data.tobytes())
+    for name in ('capture.json',):
+        with open(os.path.join(src_photos, name), 'rb') as f:
+            bs._atomic_bytes(os.path.join(photos, name), f.read())
+    for name in ('specimen.ply', 'container.ply'):
+        with open(os.path.join(src_truth, name), 'rb') as f:
+            bs._atomic_bytes(os.path.join(truth, name), f.read())
+    meta['K'] = (np.diag([scale[0], scale[1], 1.0]) @ np.array(meta['K'])).tolist()
+    meta['width'], meta['height'] = size
+    meta['reduced_from'] = {'photos': os.path.abspath(src_photos), 'truth': os.path.abspath(src_truth)}
+    bs.write_json(os.path.join(truth, 'truth.json'), meta)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(
         prog='bench/blender_capture.py',
@@ -823,11 +795,16 @@ def main(argv=None) -> None:
     parser.add_argument('--preview', action='store_true', help=f'render only {PREVIEW_VIEWS} of the views')
     parser.add_argument('--check', action='store_true',
                         help='only compare the corners of existing PHOTOS with the TRUTH of them')
+    parser.add_argument('--reduce-from', nargs=2, metavar=('SRC_PHOTOS', 'SRC_TRUTH'),
+                        help='only write an existing capture reduced to --size (area averaging) into PHOTOS, TRUTH')
     parser.add_argument('--limbs', action='store_true',
                         help="only write the legs' and antennae's axes into an existing TRUTH (as the same "
                              'arguments make them), for a capture rendered before truth.json had them')
     args = parser.parse_args(argv)
     cv2.setNumThreads(THREADS)
+    if args.reduce_from:
+        reduce_capture(*args.reduce_from, args.photos, args.truth, tuple(int(v) for v in args.size.lower().split('x')))
+        return
     if args.limbs:
         rig = make_rig(args)
         setup_cycles(rig['spp'])

@@ -9,9 +9,10 @@ Run with the Python of a venv that has the ``bpy`` wheel, not the project's::
 It imports neither reneus_mi nor mitsuba: everything the project reads is written
 from plain json/numpy (and Blender's own exporters), so the set tests the project
 against data it did not make. The objects are built here, procedurally, and are
-none of ``reneus_mi/data/objects.py``: three with thin parts (``stool``: a three-legged
+none of ``reneus_mi/data/objects.py``: four with thin parts (``stool``: a three-legged
 stool with a ring stretcher; ``coil``: a wire spring; ``sprig``: a branching twig
-with buds) and two smooth closed shapes (``knot``: a trefoil tube; ``blob``:
+with buds; ``ant``: bench/blender_capture.py's ant, legs and antennae 0.03-0.05 of its length
+thick, about half a pixel at 128 px) and two smooth closed shapes (``knot``: a trefoil tube; ``blob``:
 metaballs). Each is one watertight surface (Blender's voxel remesh of its parts),
 Lambertian (Diffuse BSDF) with a procedural albedo (noise through a colour ramp,
 in object coordinates).
@@ -26,6 +27,7 @@ is written by Blender's own exporters (in Blender's axes, z up), differently per
 - ``coil``: tall slab; OBJ, triangles, no normals (8 shared vertices);
 - ``sprig``: upright slab; ASCII PLY of quads, no normals (Blender's default faces);
 - ``knot``: near-cube turned 25 degrees about z; OBJ quads with Blender's per-face normals;
+- ``ant``: a slab turned 10 degrees about z; binary PLY, triangles, no normals;
 - ``blob``: flat slab; binary PLY, triangles, no normals. Also ``box_vnormals/``: the same
   photographs, the block as a PLY with Blender's vertex normals, which average each
   corner's faces: the file calls the box smooth.
@@ -120,6 +122,10 @@ SCENES = {
                  palette=((0.06, 0.12, 0.45), (0.55, 0.60, 0.70), (0.85, 0.72, 0.40)),
                  block=dict(half=(0.60, 0.60, 0.56), rotate=25.0, format='obj', ascii=True,
                             triangulate=False, normals=True)),
+    'ant': dict(fit=(0.56, 0.40, 0.24),
+                palette=((0.10, 0.04, 0.02), (0.40, 0.16, 0.05), (0.65, 0.42, 0.18)),
+                block=dict(half=(0.74, 0.56, 0.40), rotate=10.0, format='ply', ascii=False,
+                           triangulate=True, normals=False)),
     'blob': dict(fit=(0.58, 0.52, 0.28),
                  palette=((0.55, 0.16, 0.30), (0.85, 0.62, 0.45), (0.30, 0.10, 0.40)),
                  block=dict(half=(0.76, 0.68, 0.40), rotate=0.0, format='ply', ascii=False,
@@ -299,7 +305,65 @@ def blob():
     return [(V, np.asarray(F, np.int64))]
 
 
-OBJECTS = {'stool': stool, 'coil': coil, 'sprig': sprig, 'knot': knot, 'blob': blob}
+def ellipsoid(centre, semi, rings: int = 16):
+    """An ellipsoid of semi-axes ``semi`` (x, y, z): a scaled :func:`sphere`."""
+    V, F = sphere((0.0, 0.0, 0.0), 1.0, rings)
+    return np.asarray(centre) + V * np.asarray(semi), F
+
+
+def limb(points, radii, per_segment: int = 6, sides: int = 12, limbs: list | None = None, name: str = ''):
+    """A jointed limb: a tube along the polyline ``points`` (joints), its radius going linearly
+    from joint to joint, with a ball at each inner joint. ``limbs``: where its axis is recorded
+    as ``(name, joints, radii)``, from the body out (the truth's legs and antennae)."""
+    if limbs is not None:
+        limbs.append((name, np.asarray(points, float), np.asarray(radii, float)))
+    pts, rad = [np.asarray(points[0], float)], [radii[0]]
+    for k in range(len(points) - 1):
+        pts += list(segment(points[k], points[k + 1], per_segment + 1)[1:])
+        rad += list(np.linspace(radii[k], radii[k + 1], per_segment + 1)[1:])
+    parts = [tube(np.array(pts), np.array(rad), sides=sides)]
+    parts += [sphere(points[k], 1.1 * radii[k], rings=6) for k in range(1, len(points) - 1)]
+    return parts
+
+
+#: Radii (unit) of the ant's leg joints and of its antenna's: the ant of the first captures,
+#: and a thin-legged one (legs 0.29-0.12 mm thick, antennae 0.10-0.08 mm, at 12 mm long).
+ANT_RADII = {'ant': dict(leg=(0.024, 0.022, 0.019, 0.017), antenna=(0.016, 0.015, 0.016), club=0.022),
+             'ant_thin': dict(leg=(0.013, 0.011, 0.008, 0.0055), antenna=(0.0045, 0.004, 0.0036), club=0.006)}
+
+
+def ant(limbs: list | None = None, radii: dict = ANT_RADII['ant']):
+    """Gaster, petiole, thorax and head; six legs that go out and up to the knee, then out and
+    down; elbowed antennae. ``radii``: the legs' and antennae's (:data:`ANT_RADII`; the first
+    ant's legs 0.048-0.034 of the unit thick, fitted to a length of 12 mm: 0.53 mm at the femur,
+    0.37 mm at the tarsus, antennae 0.03: 0.33 mm). ``limbs``: see :func:`limb`."""
+    parts = [ellipsoid((-0.30, 0.0, 0.03), (0.20, 0.135, 0.125)),
+             ellipsoid((-0.075, 0.0, 0.05), (0.035, 0.03, 0.05)),
+             tube(segment((-0.14, 0.0, 0.04), (0.0, 0.0, 0.045), 6), 0.022, sides=12),
+             ellipsoid((0.10, 0.0, 0.05), (0.135, 0.058, 0.062)),
+             tube(segment((0.2, 0.0, 0.05), (0.28, 0.0, 0.055), 5), 0.03, sides=12),
+             ellipsoid((0.335, 0.0, 0.06), (0.085, 0.075, 0.065))]
+    for side in (-1.0, 1.0):
+        for pair, (x, reach) in enumerate(((0.03, -0.16), (0.10, -0.02), (0.17, 0.13))):
+            a = np.array([x, side * 0.045, 0.02])
+            knee = a + [0.5 * reach, side * 0.19, 0.09]
+            ankle = knee + [0.8 * reach, side * 0.11, -0.23]
+            foot = ankle + [0.4 * reach, side * 0.07, -0.05]
+            parts += limb([a, knee, ankle, foot], list(radii['leg']), limbs=limbs,
+                          name=f"{'hind middle fore'.split()[pair]} leg {'left' if side < 0 else 'right'}")
+        # Mandible and antenna (scape up and out, funiculus forward, a club at its tip).
+        parts.append(tube(segment((0.39, side * 0.03, 0.04), (0.45, side * 0.012, 0.035), 5),
+                             np.linspace(0.018, 0.008, 5), sides=10))
+        base = np.array([0.38, side * 0.035, 0.09])
+        elbow = base + [0.03, side * 0.07, 0.11]
+        tip = elbow + [0.16, side * 0.07, -0.02]
+        parts += limb([base, elbow, tip], list(radii['antenna']), limbs=limbs,
+                      name=f"antenna {'left' if side < 0 else 'right'}")
+        parts.append(sphere(tip, radii['club'], rings=6))
+    return parts
+
+
+OBJECTS = {'stool': stool, 'coil': coil, 'sprig': sprig, 'knot': knot, 'blob': blob, 'ant': ant}
 
 
 def fit(parts, half):
