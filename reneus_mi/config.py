@@ -202,8 +202,9 @@ class TrainConfig:
     checkpoint_every: int = 100
     """Steps between checkpoints (written atomically; --resume continues from the last)."""
     mesh_resolution: int = 256
-    """Marching-cubes grid resolution of the final mesh (at least: a field whose finest level
-    is finer across the container is meshed at that, up to 512)."""
+    """Marching-cubes grid points per axis of the container's box for the final mesh, laid over
+    the part that holds the surface only (at least: a field whose finest level is finer is
+    meshed at that, up to 512^3 points over that part)."""
     max_image_size: int = 0
     """Longest side, in pixels, of the photographs as the run fits them: larger ones are
     reduced as they load (area averaging; cameras and masks follow), which lowers the memory

@@ -25,7 +25,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog='python -m reneus_mi.extract', description=__doc__.splitlines()[0])
     parser.add_argument('checkpoint', help='checkpoint.npz of a reconstruction')
     parser.add_argument('-o', '--output', default='mesh.ply', help='mesh file (.ply, .obj, .stl, .off)')
-    parser.add_argument('--resolution', type=int, default=512, help='marching-cubes grid resolution')
+    parser.add_argument('--resolution', type=int, default=512, help='marching-cubes grid points along the longest side of the box that holds the surface')
     parser.add_argument('--postprocess', choices=POSTPROCESS_MODES, default='clean',
                         help="'clean' (join pieces the field joins within its blur 1/s, drop floating fragments, "
                              "keep cut-off thin parts), 'largest' connected "

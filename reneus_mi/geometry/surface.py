@@ -304,20 +304,57 @@ def postprocess(mesh: trimesh.Trimesh, mode: str, container: trimesh.Trimesh | N
     raise ReneusError(f'postprocess mode {mode!r}: expected one of {", ".join(POSTPROCESS_MODES)}')
 
 
+#: Grid points per axis of the coarse look at the field that finds where its surface lies
+#: (:func:`surface_box`) before the mesh's grid is laid over it.
+SURFACE_BOX_RESOLUTION = 96
+
+
+def surface_box(field: Field, lo, hi, resolution: int = SURFACE_BOX_RESOLUTION) -> tuple[np.ndarray, np.ndarray]:
+    """The part of the box ``[lo, hi]`` that holds ``field``'s surface: where a coarse grid's
+    SDF is below two of its cells (inside, or near enough for a part thinner than a cell),
+    grown by two cells, within the box; the whole box where the grid finds nothing.
+
+    A specimen is a small part of its container (an ant of 12 mm in a 40 mm block: 3 % of its
+    volume): a grid over that part alone has the same cells for a thirtieth of the points."""
+    lo, hi = _triple(lo, 'lo'), _triple(hi, 'hi')
+    with dr.suspend_grad():
+        grid = sdf_grid(field, lo, hi, resolution)
+    step = (hi - lo) / (resolution - 1)
+    near = np.argwhere(np.nan_to_num(grid, nan=np.inf) < 2.0 * np.linalg.norm(step))
+    if len(near) == 0:
+        return lo, hi
+    return (np.maximum(lo + (near.min(axis=0) - 2) * step, lo),
+            np.minimum(lo + (near.max(axis=0) + 2) * step, hi))
+
+
+def mesh_grid(lo, hi, resolution: int, inner=None) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
+    """The grid of ``resolution`` points per axis over the box ``[lo, hi]``, or only its cells
+    that cover the box ``inner`` (lo, hi) within it: that part's corners and points per axis."""
+    lo, hi = _triple(lo, 'lo'), _triple(hi, 'hi')
+    if inner is None:
+        return lo, hi, (resolution,) * 3
+    step = (hi - lo) / (resolution - 1)
+    first = np.clip(np.floor((np.asarray(inner[0]) - lo) / step + 1e-9), 0, resolution - 2).astype(int)
+    last = np.clip(np.ceil((np.asarray(inner[1]) - lo) / step - 1e-9), first + 1, resolution - 1).astype(int)
+    return lo + first * step, lo + last * step, tuple(int(n) for n in last - first + 1)
+
+
 def field_mesh(field: Field, frame: FieldFrame, resolution: int, mode: str, container: str | None = None):
     """The post-processed mesh of ``field`` in world coordinates.
 
-    Marching cubes runs over the container's box in the field's frame
-    (:meth:`FieldFrame.field_box`); ``container`` is the container mesh file,
-    needed by ``mode='crop'``.
+    Marching cubes runs on the grid of ``resolution`` points per axis over the container's
+    box in the field's frame (:meth:`FieldFrame.field_box`), over the part of it that holds
+    the surface only (:func:`surface_box`); ``container`` is the container mesh file, needed by
+    ``mode='crop'``.
     """
-    lo, hi = frame.field_box()
+    box = frame.field_box()
+    lo, hi, counts = mesh_grid(*box, resolution, surface_box(field, *box))
     gap = 0.0
     if mode == 'clean':
-        cell = float(np.max((np.asarray(hi) - np.asarray(lo)) / (resolution - 1)))
+        cell = float(np.max((hi - lo) / (np.asarray(counts) - 1)))
         gap = min(1.0 / float(np.asarray(field.inv_s()).ravel()[0]), BRIDGE_CELLS * cell)
     with dr.suspend_grad():
-        mesh = extract_mesh(field, lo, hi, resolution, to_world=frame.to_world_matrix(), gap=gap)
+        mesh = extract_mesh(field, lo, hi, counts, to_world=frame.to_world_matrix(), gap=gap)
     if mode == 'crop':
         if not container:
             raise ReneusError("postprocess 'crop' needs the container mesh, and none is recorded")

@@ -32,7 +32,7 @@ from reneus_mi.data import Dataset
 from reneus_mi.data.images import write_image
 from reneus_mi.fields import load_field
 from reneus_mi.geometry.mesh import gltf_from_world, write_glb, write_mesh
-from reneus_mi.geometry.surface import components, field_colors, field_mesh
+from reneus_mi.geometry.surface import components, field_colors, field_mesh, surface_box
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.render.loading import reneus_integrator
 from reneus_mi.render.seeds import JITTER, step_seed
@@ -45,9 +45,10 @@ from reneus_mi.utils import interrupt, limits
 from reneus_mi.utils.errors import NoSurfaceError, ReneusError
 from reneus_mi.utils.variant import is_cuda
 
-#: Finest final mesh that following the field's detail chooses (a 512^3 grid and its
-#: clean-up peak at about 3 GB).
-MAX_AUTO_MESH_RESOLUTION = 512
+#: Most grid points of the final mesh's grid, over the part of the container that holds the
+#: surface, that following the field's detail chooses (512^3 and its clean-up peak at about
+#: 3 GB).
+MAX_AUTO_MESH_POINTS = 512 ** 3
 #: Rays per kernel launch when rendering a whole view.
 RENDER_CHUNK = 1 << 14
 #: Mask margin while the container's pose is refined, as a fraction of the container's size in
@@ -349,15 +350,17 @@ class Trainer:
         return path
 
     def mesh_resolution(self) -> int:
-        """The final mesh's grid: ``mesh_resolution``, or the field's finest detail across the
-        container where that is finer (a hash grid fitted to large photographs), up to
-        :data:`MAX_AUTO_MESH_RESOLUTION`."""
+        """The final mesh's grid over the container's box: ``mesh_resolution``, or the field's
+        finest detail where that is finer (a hash grid fitted to large photographs), as long as
+        the part of it that holds the surface has at most :data:`MAX_AUTO_MESH_POINTS`."""
         resolution = self.cfg.mesh_resolution
         detail = self.field.detail()
         if detail:
             lo, hi = self.frame.field_box()
+            inner_lo, inner_hi = surface_box(self.field, lo, hi)
+            share = float(np.prod((inner_hi - inner_lo) / (hi - lo)))
             need = int(np.ceil(float(np.max(hi - lo)) / detail))
-            resolution = max(resolution, min(need, MAX_AUTO_MESH_RESOLUTION))
+            resolution = max(resolution, min(need, int(MAX_AUTO_MESH_POINTS ** (1 / 3) / share ** (1 / 3))))
         return resolution
 
     def write_mesh(self, path: str, resolution: int | None = None):

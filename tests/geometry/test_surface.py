@@ -237,3 +237,29 @@ def test_glb_in_metres_with_the_tables_up(tmp_path):
     np.testing.assert_allclose(back.bounds.mean(axis=0), [0.1, 0.005, 0.05], atol=1e-4)
     assert len(back.vertices) == len(mesh.vertices)
     np.testing.assert_array_equal(back.visual.vertex_colors[:, :3], np.round(colors * 255).astype(np.uint8))
+
+
+class _SmallSphere(SphereField):
+    """A sphere of radius 0.1 off the centre of the [-1, 1] box: a specimen in its container."""
+    def _distance(self, p):
+        import drjit as dr
+        import mitsuba as mi
+        return dr.norm(p - mi.Vector3f(0.3, -0.2, 0.1)) - 0.1
+
+
+def test_the_mesh_grid_covers_the_surface_only_with_the_same_cells():
+    """field_mesh lays the container's grid over the part of it that holds the surface: the
+    same vertices as the whole grid, for a sixtieth of the points."""
+    from reneus_mi.geometry.surface import field_mesh, mesh_grid, surface_box
+    field = _SmallSphere()
+    lo, hi = surface_box(field, -1.0, 1.0)
+    assert np.all(lo <= [0.2, -0.3, 0.0]) and np.all(hi >= [0.4, -0.1, 0.2])
+    assert np.all(hi - lo < 0.5)
+    sub_lo, sub_hi, counts = mesh_grid(-1.0, 1.0, 129, (lo, hi))
+    assert np.prod(counts) < 129 ** 3 / 60
+    part = field_mesh(field, FieldFrame(), 129, 'none')
+    whole = extract_mesh(field, -1.0, 1.0, 129)
+    assert len(part.vertices) == len(whole.vertices)
+    np.testing.assert_allclose(np.sort(part.vertices, axis=0), np.sort(whole.vertices, axis=0), atol=1e-6)
+    # Inside everywhere: the whole box.
+    assert np.allclose(surface_box(SphereField(radius=5.0), -1.0, 1.0)[0], -1.0)
