@@ -77,14 +77,16 @@ def test_resume_matches_unbroken_run(scene_xml, tmp_path):
     assert min(moved[f'param/{name}'] for name in init.names.values()) > 30 * PARAM_ATOL
 
 
-def test_resume_of_a_refining_run_matches_unbroken_run(scene_xml, tmp_path):
+def test_resume_of_a_refining_run_is_bitwise(scene_xml, tmp_path, one_thread):
     # IOR, pose (with the silhouette term), SH light and a sample budget: their values, Adam
-    # states and the batch size come back from the checkpoint.
+    # states and the batch size come back from the checkpoint. One thread: on two, the order
+    # of float sums varies, the pixel errors with it, and error-driven batches then draw other
+    # pixels (seen once in a clean-clone suite on a loaded machine).
     refine = {'refine.ior': True, 'refine.pose': True, 'refine.light': 'sh', 'refine.after': 0,
               'sample_budget': 2000, 'batch_rays': 64}
     a, b = _resume_vs_unbroken(scene_xml, tmp_path, **refine)
     assert {'param/container.eta', 'param/container.translation', 'param/light.sh'} <= set(a)
-    assert_same_state(a, b, exact=False)
+    assert_same_state(a, b, exact=True)
     init = new_trainer(scene_xml, tmp_path / 'init', **refine)
     moved = differences(a, train_state(init))
     assert moved['param/container.translation'] > 30 * PARAM_ATOL
