@@ -14,10 +14,14 @@ renders average over the steps; through the centre only, a leg between two centr
 never seen. And a share of each batch (``error_share``) is drawn in proportion to the
 colour error that each pixel had when it was last drawn: a leg two pixels wide is 1-2 % of
 the container's pixels, and the body's pixels, fitted early, keep taking the rest. Such a
-draw picks a block of :data:`ERROR_BLOCK` pixels by the prefix sum of the blocks' errors
-(float64, rebuilt every ``error_refresh`` steps), then a pixel within the block by the errors
-now: a float32 prefix sum over tens of millions of pixels (a full-resolution capture) cannot
-resolve one pixel's error against the total. The errors and the blocks' prefix sum are the
+draw picks a block of :data:`ERROR_BLOCK` pixels (a TILE x TILE tile of a photograph: the
+masked pixels are ordered tile by tile) by the prefix sum of the blocks' errors (float64,
+rebuilt every ``error_refresh`` steps), then a pixel within the block by the errors now: a
+float32 prefix sum over tens of millions of pixels (a full-resolution capture) cannot resolve
+one pixel's error against the total. A pixel never drawn takes, as an estimate, the last
+error of a pixel drawn in its tile: a run of 12-megapixel photographs draws each pixel a
+tenth of a time, and one that had to wait for its own draw would spend its batches on the
+unseen body as much as on the legs. The errors and the blocks' prefix sum are the
 sampler's state (saved in the checkpoint: a resumed run draws what the unbroken one drew).
 """
 from __future__ import annotations
@@ -75,7 +79,7 @@ class PixelSampler:
         self.config = config or PixelSamplerConfig()
         n, h, w = dataset.masks.shape
         masks = dataset.masks if margin == 0.0 else widen(dataset.masks, margin)
-        pixels = np.flatnonzero(masks.reshape(-1))
+        pixels = _by_tile(np.flatnonzero(masks.reshape(-1)), h, w)
         if len(pixels) == 0:
             raise ReneusError(f'{dataset.root}: no view sees the container (all masks are empty)')
         if n * h * w >= 2 ** 32:
@@ -90,7 +94,9 @@ class PixelSampler:
         self.rotation = mi.Float(dataset.c2w[:, :3, :3].reshape(-1).astype(np.float32))
         self.origin = mi.Float(dataset.c2w[:, :3, 3].reshape(-1).astype(np.float32))
         # Unseen pixels count as badly fitted (errors are mean absolute colour differences).
-        self.error = dr.full(mi.Float, 1.0, self.n_pixels) if self.config.error_share else None
+        # Never drawn: -1, i.e. badly fitted (errors are mean absolute colour differences; a
+        # negative value is an estimate, its size the weight).
+        self.error = dr.full(mi.Float, -1.0, self.n_pixels) if self.config.error_share else None
         self.cdf = _block_cdf(self.error) if self.error is not None else None
         self.drawn: mi.UInt32 | None = None
 
@@ -121,7 +127,7 @@ class PixelSampler:
         size = dr.minimum(ERROR_BLOCK, self.n_pixels - first)
 
         def error(k):
-            return dr.gather(mi.Float, self.error, first + k)
+            return dr.abs(dr.gather(mi.Float, self.error, first + k))
         k, total = dr.while_loop((mi.UInt32(0), mi.Float(0.0)), lambda k, t: k < size,
                                  lambda k, t: (k + 1, t + error(k)))
         target = rng.next_float32() * total
@@ -137,9 +143,20 @@ class PixelSampler:
         return mi.Float(dr.arange(mi.UInt32, n)) < dr.opaque(mi.Float, (1.0 - self.config.error_share) * n)
 
     def record(self, color: mi.Color3f, target: mi.Color3f) -> None:
-        """The colour error of the batch just drawn, per pixel, for the next draws by error."""
-        if self.error is not None:
-            dr.scatter(self.error, dr.mean(dr.abs(dr.detach(color) - target), axis=0), self.drawn)
+        """The colour error of the batch just drawn, per pixel, for the next draws by error; the
+        pixels of each drawn one's block never drawn themselves take it as their estimate."""
+        if self.error is None:
+            return
+        error = dr.mean(dr.abs(dr.detach(color) - target), axis=0)
+        lane = dr.arange(mi.UInt32, dr.width(self.drawn) * ERROR_BLOCK)
+        ray = lane // ERROR_BLOCK
+        drawn = dr.gather(mi.UInt32, self.drawn, ray)
+        mate = drawn - drawn % ERROR_BLOCK + lane % ERROR_BLOCK
+        valid = mate < self.n_pixels
+        unseen = valid & (dr.gather(mi.Float, self.error, mate, valid) < 0.0)
+        dr.scatter(self.error, -dr.gather(mi.Float, error, ray), mate, unseen)
+        dr.eval(self.error)     # the drawn pixels' own errors over any estimate of them
+        dr.scatter(self.error, error, self.drawn)
 
     def state(self) -> dict[str, np.ndarray]:
         """What a checkpoint keeps of the sampler."""
@@ -185,10 +202,22 @@ class PixelSampler:
         return mi.Ray3f(dr.gather(mi.Point3f, self.origin, view), dr.normalize(d))
 
 
+#: Side of the square tiles that the masked pixels are ordered by (ERROR_BLOCK of them: a
+#: block of the error-driven draw is a tile of the photograph where the mask is whole).
+TILE = 8
+
+
+def _by_tile(pixels: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Flat pixel indices (view, y, x) ordered tile by tile (TILE x TILE), row by row within."""
+    view, rest = np.divmod(pixels, height * width)
+    y, x = np.divmod(rest, width)
+    return pixels[np.lexsort((x, y % TILE, x // TILE, y // TILE, view))]
+
+
 def _block_cdf(error: mi.Float):
     """The inclusive prefix sum (float64) of the errors' sums over blocks of :data:`ERROR_BLOCK`:
     block b is drawn where u lies in [cdf[b-1], cdf[b])."""
-    sums = dr.float64_array_t(mi.Float)(dr.block_reduce(dr.ReduceOp.Add, error, ERROR_BLOCK))
+    sums = dr.float64_array_t(mi.Float)(dr.block_reduce(dr.ReduceOp.Add, dr.abs(error), ERROR_BLOCK))
     cdf = dr.prefix_reduce(dr.ReduceOp.Add, sums, exclusive=False)
     dr.eval(cdf)
     return cdf

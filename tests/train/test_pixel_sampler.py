@@ -24,7 +24,8 @@ def test_colours_are_the_photographs(dtype, tolerance):
     images = (np.round(values * top) if top != 1.0 else values).astype(dtype)
     sampler = PixelSampler(_dataset(images, masks), config=PixelSamplerConfig(error_share=0.0))
     got = np.asarray(sampler.color(dr.arange(mi.UInt32, sampler.n_pixels))).T
-    expected = images[masks].astype(np.float64) / top
+    expected = images.reshape(-1, 3)[np.asarray(sampler.pixels)].astype(np.float64) / top
+    assert sorted(np.asarray(sampler.pixels)) == list(np.flatnonzero(masks))
     assert got.shape == expected.shape
     assert np.max(np.abs(got - expected)) <= tolerance + 1e-7
 
@@ -60,6 +61,28 @@ def test_draws_follow_the_errors():
     seen = np.array([counts[g].sum() for g in groups])
     chi2 = float(np.sum((seen - expected) ** 2 / expected))
     assert chi2 < 80.0, chi2        # 39 degrees of freedom: p < 0.001 beyond 73
+
+
+def test_a_block_is_a_tile_whose_unseen_pixels_take_the_last_error_drawn():
+    """The masked pixels are ordered tile by tile (a block of the draw: 8 x 8 pixels where the
+    mask is whole); a pixel's error, once recorded, is the estimate of the tile's pixels never
+    drawn, and theirs alone is kept for the drawn."""
+    masks = np.ones((1, 16, 16), bool)
+    sampler = PixelSampler(_dataset(np.zeros(masks.shape + (3,), np.uint8), masks),
+                           config=PixelSamplerConfig(jitter=False, error_share=1.0))
+    y, x = np.divmod(np.asarray(sampler.pixels)[:ERROR_BLOCK], 16)
+    assert y.max() - y.min() == 7 and x.max() - x.min() == 7          # the top-left tile
+    sampler.drawn = mi.UInt32([3, 70])
+    sampler.record(mi.Color3f([0.5, 0.2], [0.5, 0.2], [0.5, 0.2]), mi.Color3f(0.0))
+    error = np.asarray(sampler.error)
+    assert error[3] == pytest.approx(0.5) and error[70] == pytest.approx(0.2)
+    assert np.allclose(np.delete(error[:ERROR_BLOCK], 3), -0.5)
+    assert np.allclose(np.delete(error[ERROR_BLOCK:2 * ERROR_BLOCK], 70 - ERROR_BLOCK), -0.2)
+    assert np.all(error[2 * ERROR_BLOCK:] == -1.0)
+    sampler.drawn = mi.UInt32([5])
+    sampler.record(mi.Color3f(0.1), mi.Color3f(0.0))
+    error = np.asarray(sampler.error)
+    assert error[3] == pytest.approx(0.5) and error[5] == pytest.approx(0.1) and error[6] == pytest.approx(-0.1)
 
 
 def test_draws_within_a_block_follow_errors_now():
