@@ -187,6 +187,16 @@ class TrainConfig:
     """Steps of linear learning-rate warm-up (NeuS: 5000 of 300k)."""
     anneal_end: int = 0
     """Steps over which NeuS's cosine annealing ratio goes from 0 to 1 (0: no annealing)."""
+    sharpness_start: float = 0.0
+    """Cap on NeuS's sharpness s at the first step (0: no cap, s is learned freely as in NeuS).
+    The cap rises geometrically to `sharpness_end` over the planned `iterations` (under a time
+    budget, its share, as the other schedules). Why: a missing leg's rays pass the body at an
+    SDF of millimetres, where NeuS's density is exp(-s g); a field that sharpens before its thin
+    parts have grown out leaves them as stumps (sharp photographs make s race: 393 by a sixth
+    of a 12 MP run)."""
+    sharpness_end: float = 512.0
+    """Cap on the sharpness s at the end of the planned iterations, and after (with
+    `sharpness_start`)."""
     trans_weight: float = 0.1
     """λ1, weight of the transmittance sparsity prior L_trans (0 disables it)."""
     eikonal_weight: float = 0.1
@@ -225,8 +235,11 @@ class TrainConfig:
                       at_least_zero=('sample_budget', 'warm_up', 'anneal_end', 'validate_every', 'checkpoint_every',
                                      'max_image_size',
                                      'validation_view', 'trans_weight', 'eikonal_weight',
-                                     'learning_rate_alpha', 'max_minutes', 'seed'))
+                                     'learning_rate_alpha', 'max_minutes', 'seed', 'sharpness_start'))
         check_choice(self, 'postprocess', POSTPROCESS_MODES)
+        if self.sharpness_start and not self.sharpness_end >= self.sharpness_start:
+            raise ReneusError(f'train.sharpness_end={self.sharpness_end}: expected at least '
+                              f'train.sharpness_start={self.sharpness_start}')
 
     def learning_rate_at(self, it: int) -> float:
         """NeuS's schedule: linear warm-up, then cosine decay to ``learning_rate_alpha``."""
@@ -238,6 +251,13 @@ class TrainConfig:
 
     def cos_anneal_ratio(self, it: int) -> float:
         return 1.0 if self.anneal_end == 0 else min(1.0, it / self.anneal_end)
+
+    def sharpness_cap(self, it: int) -> float:
+        """The largest sharpness s allowed at step ``it`` (inf: no cap)."""
+        if not self.sharpness_start:
+            return math.inf
+        progress = min(it / self.iterations, 1.0)
+        return self.sharpness_start * (self.sharpness_end / self.sharpness_start) ** progress
 
 
 @dataclass

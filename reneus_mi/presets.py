@@ -12,7 +12,8 @@ small   a small NeuS field (32 x 4), 32 + 16 samples, 300 steps of 256
         rays: bench/compare.py --config small, the end-to-end test
 fast    a hash-grid SDF (7 levels to 256, 2^16 entries) with tiny MLPs and
         an analytic gradient, 24 + 8 samples, a 64^3 occupancy grid that
-        skips empty segments, λ1 = 0.01: the CPU and GPU workhorse
+        skips empty segments, λ1 = 0.01, the sharpness s held below a cap
+        that rises from 64 to 512: the CPU and GPU workhorse
 tiny    tests and notebook smoke runs: width 16, 8 + 8 samples, 64 rays
         per step (seconds per run; not for results)
 ======= ==============================================================
@@ -32,9 +33,10 @@ from reneus_mi.utils.errors import ReneusError
 #: NeuS's field at CPU size (the small and the cpu preset's architecture differ in width only).
 _SMALL_NEUS = dict(layers=4, color_layers=2, multires=4, multires_view=2, init_radius=0.3)
 #: The hash-grid presets' sampling and training. λ1 = 0.1 (the paper's L_trans weight) empties a
-#: hash grid (docs/constants.md).
+#: hash grid (docs/constants.md); a free sharpness outruns thin parts (docs/quality.md).
 _GRID_SAMPLER = SamplerConfig(n_coarse=24, n_fine=8, n_upsample_steps=2, occupancy_resolution=64)
-_GRID_TRAIN = dict(batch_rays=1024, learning_rate=1e-3, warm_up=50, trans_weight=0.01)
+_GRID_TRAIN = dict(batch_rays=1024, learning_rate=1e-3, warm_up=50, trans_weight=0.01,
+                   sharpness_start=64.0)
 
 PRESETS: dict[str, ReconstructionConfig] = {
     'paper': ReconstructionConfig(),

@@ -300,6 +300,11 @@ class NeuralField(Field):
     def inv_s(self) -> mi.Float:
         return dr.exp(10.0 * self._variance)
 
+    @staticmethod
+    def variance_of(inv_s: float) -> float:
+        """The value of the ``'variance'`` parameter that gives the sharpness ``inv_s``."""
+        return math.log(inv_s) / 10.0
+
     # ---------------------------------------------------------- parameters
     def params(self) -> dict:
         return {'color.weights': self.color_network['weights'], 'variance': self._variance}

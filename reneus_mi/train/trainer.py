@@ -15,6 +15,7 @@ its files, its log, its lock and its state).
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 import warnings
@@ -292,6 +293,10 @@ class Trainer:
                 for name in group.keys:
                     key = self.keys[name]
                     self.opt[key] = dr.clip(self.opt[key], *group.bounds)
+        cap = cfg.sharpness_cap(s)
+        if cap < math.inf and 'variance' in self.keys:
+            key = self.keys['variance']
+            self.opt[key] = dr.minimum(self.opt[key], self.field.variance_of(cap))
         self.params.update(self.opt)
         self.iteration += 1
         self.best_loss = min(self.best_loss, value)

@@ -1,6 +1,6 @@
 """The trainer: it writes into the field's own arrays (what ``mi.traverse`` shows), its
 parameter groups start at their steps within their bounds, its steps reuse their kernels,
-a sample budget sets the batch, its memory floor.
+a sample budget sets the batch, its memory floor, the sharpness under its cap.
 """
 from __future__ import annotations
 
@@ -11,9 +11,10 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from reneus_mi.config import replace
+from reneus_mi.config import TrainConfig, replace
 from reneus_mi.train import runs
 from reneus_mi.train.trainer import next_batch, training_bytes
+from reneus_mi.utils.errors import ReneusError
 from tiny import new_trainer
 
 
@@ -75,7 +76,6 @@ def test_training_steps_reuse_their_kernels(scene_xml, tmp_path, budget, refine)
     assert len(new) < (2 if refine else 12), len(new)
 
 
-def test_sample_budget_sets_the_next_batch():
     from reneus_mi.config import TrainConfig
     cfg = TrainConfig(batch_rays=1024, sample_budget=40_960)
     assert next_batch(cfg, 40.0) == 1024
@@ -108,3 +108,20 @@ def test_training_bytes_is_a_floor_of_the_measured_cost():
     # Measured: 96 B per sample slot (see trainer.BYTES_PER_SAMPLE_SLOT).
     assert training_bytes(32768 - 1024, 16, 3) < (407176 - 263352) * 1024
     assert training_bytes(2048, 16, 3) == 2 * training_bytes(1024, 16, 3)
+
+
+def test_sharpness_stays_under_its_rising_cap(scene_xml, tmp_path):
+    """s starts at 20 (variance 0.3): the first step under a cap of 8 brings it down to 8, and no
+    step leaves it above that step's cap, which rises geometrically to 16 over the run."""
+    trainer = new_trainer(scene_xml, tmp_path, sharpness_start=8.0, sharpness_end=16.0)
+    cfg = trainer.cfg
+    assert [cfg.sharpness_cap(it) for it in (0, cfg.iterations // 2, cfg.iterations, 10 * cfg.iterations)] \
+        == pytest.approx([8.0, 8.0 * 2 ** 0.5, 16.0, 16.0])
+    for it in range(cfg.iterations):
+        trainer.step()
+        s = float(trainer.field.inv_s()[0])
+        assert s <= cfg.sharpness_cap(it) * (1 + 1e-6)
+        if it == 0:
+            assert s == pytest.approx(8.0, rel=1e-6)
+    with pytest.raises(ReneusError, match=r'train.sharpness_end=32.0: expected at least train.sharpness_start=64.0'):
+        TrainConfig(sharpness_start=64.0, sharpness_end=32.0)
