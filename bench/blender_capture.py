@@ -11,8 +11,8 @@ Python of a venv that has the ``bpy`` wheel, not the project's::
 
     python3.11 -m venv /work/venvs/bpy && /work/venvs/bpy/bin/pip install bpy==5.0.1 'numpy<2' \\
         'opencv-contrib-python-headless<4.12'
-    /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH [--specimen ant|beetle|shell]
-        [--block small|large] [--size 960x640] [--board-factor K] [--views 48] [--spp N] [--seed S]
+    /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH [--specimen ant|ant_thin|beetle|shell]
+        [--block small|large] [--container box|jar] [--size 960x640] [--board-factor K] [--views 48] [--spp N] [--seed S]
         [--ior 1.45] [--preview]
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH --check
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH --reduce-from SRC_PHOTOS SRC_TRUTH \
@@ -31,6 +31,9 @@ world is the same turned 180 degrees about x, so that its z is up):
 - the light tent: a constant world of radiance 1;
 - the block: a W x D x H box of Glass BSDF (roughness 0) standing on the board at a place
   ``(x, y, yaw)`` near its centre; caustics on, so its shadow and caustics fall on the print;
+  or (``--container jar``) a closed glass jar, a cylinder whose walls, lid and floor are
+  ``JAR_WALL_MM`` thick, filled with ethanol (IOR 1.36), stated to the capture as a cylinder
+  with ``wall_mm`` and ``liquid_ior``;
 - the specimen: procedural, one watertight surface (voxel remesh), diffuse with a noise
   albedo, hanging at mid-height: ``ant`` (head, thorax, gaster, six jointed legs 0.37-0.53
   mm thick in the small block, elbowed antennae of 0.33 mm), ``ant_thin`` (the same ant with legs
@@ -77,6 +80,15 @@ BLOCKS = {
     'small': dict(size_mm=(40.0, 30.0, 22.0), squares=(10, 7), square_mm=24.0, marker_mm=18.0),
     'large': dict(size_mm=(60.0, 45.0, 30.0), squares=(12, 9), square_mm=25.0, marker_mm=19.0),
 }
+#: Jars (``--container jar``) on the same boards: outer diameter x diameter x height (mm), as
+#: the capture states a cylinder; glass walls, lid and floor JAR_WALL_MM thick around ethanol.
+JARS = {'small': (40.0, 40.0, 30.0), 'large': (60.0, 60.0, 40.0)}
+JAR_WALL_MM = 2.0
+LIQUID_IOR = 1.36
+#: The capture's name of each container's shape.
+SHAPES = {'box': 'box', 'jar': 'cylinder'}
+#: Sides of the jar's cylinder (Blender's primitive and the truth's mesh alike).
+JAR_SIDES = 64
 #: ArUco dictionary of the markers (35 or 54 markers used of 100).
 DICTIONARY = 'DICT_4X4_100'
 #: White paper around the printed pattern (mm).
@@ -315,19 +327,29 @@ def expose(linear: np.ndarray, gain: float, rng: np.random.Generator) -> np.ndar
     return np.round(np.clip(value, 0.0, 1.0) ** (1.0 / GAMMA) * 255.0).astype(np.uint8)
 
 
-def box_mesh(size_mm, pose) -> tuple[np.ndarray, np.ndarray]:
-    """The block in the board's frame: 8 shared vertices, 12 triangles wound outwards."""
+def container_mesh(shape: str, size_mm, pose) -> tuple[np.ndarray, np.ndarray]:
+    """The container's outer surface in the board's frame, triangles wound outwards: the block
+    (8 shared vertices) or the jar (a JAR_SIDES-sided cylinder, closed by two fans)."""
     W, D, H = size_mm
-    corners = np.array([[x, y, z] for z in (0.0, -H) for y in (-0.5 * D, 0.5 * D) for x in (-0.5 * W, 0.5 * W)])
+    if shape == 'box':
+        corners = np.array([[x, y, z] for z in (0.0, -H) for y in (-0.5 * D, 0.5 * D) for x in (-0.5 * W, 0.5 * W)])
+        # Index = x + 2 y + 4 z (z = 1: the top, at -H).
+        quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+        faces = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    else:
+        a = 2.0 * np.pi * np.arange(JAR_SIDES) / JAR_SIDES
+        ring = np.stack([0.5 * W * np.cos(a), 0.5 * D * np.sin(a)], axis=1)
+        corners = np.concatenate([np.c_[ring, np.zeros(JAR_SIDES)], np.c_[ring, np.full(JAR_SIDES, -H)],
+                                  [[0.0, 0.0, 0.0], [0.0, 0.0, -H]]])
+        n = JAR_SIDES
+        faces = [t for i in range(n) for t in ((i, (i + 1) % n, n + (i + 1) % n), (i, n + (i + 1) % n, n + i))]
+        faces += [(2 * n, (i + 1) % n, i) for i in range(n)] + [(2 * n + 1, n + i, n + (i + 1) % n) for i in range(n)]
     V = corners @ pose_matrix(pose)[:3, :3].T + pose_matrix(pose)[:3, 3]
-    # Index = x + 2 y + 4 z (z = 1: the top, at -H); quads counter-clockwise seen from outside.
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    F = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
-    # z points into the table: 'counter-clockwise from outside' flips with it; check outwards.
-    centre = V.mean(axis=0)
+    F = np.array(faces)
+    # Convex: each triangle faces away from the centre (z into the table flips 'counter-clockwise').
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    if np.einsum('ij,ij->i', n, V[F].mean(axis=1) - centre).min() < 0:
-        F = F[:, ::-1]
+    inward = np.einsum('ij,ij->i', n, V[F].mean(axis=1) - V.mean(axis=0)) < 0
+    F[inward] = F[inward][:, ::-1]
     return V, F
 
 
@@ -417,14 +439,16 @@ def make_specimen(rig: dict) -> tuple[np.ndarray, np.ndarray]:
     parts, joints = fitted[:len(parts)], [v for v, _ in fitted[len(parts):]]
     ob, V, F = bs.object_mesh(rig['specimen'], parts, spec['palette'], spec.get('voxel', bs.VOXEL))
     W, D, H = rig['size_mm']
-    length = SPECIMEN_SHARE * W
+    length = SPECIMEN_SHARE * BLOCKS[rig['block']]['size_mm'][0]
     c, s = math.cos(math.radians(SPECIMEN_YAW)), math.sin(math.radians(SPECIMEN_YAW))
     local = np.eye(4)                                         # block frame (board axes) from unit
     local[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) * length
     local[:3, 3] = [0.0, 0.0, -0.5 * H]
     inside = V @ local[:3, :3].T + local[:3, 3]
-    gap = min((0.5 * np.array([W, D]) - np.abs(inside[:, :2]).max(axis=0)).min(),
-              (-inside[:, 2]).min(), (H + inside[:, 2]).min())
+    wall = rig.get('wall_mm', 0.0)
+    side_gap = (0.5 * W - wall - np.linalg.norm(inside[:, :2], axis=1).max() if rig['container'] == 'jar'
+                else (0.5 * np.array([W, D]) - np.abs(inside[:, :2]).max(axis=0)).min())
+    gap = min(side_gap, (-inside[:, 2]).min() - wall, (H + inside[:, 2]).min() - wall)
     if gap < CLEARANCE * min(W, D, H):
         sys.exit(f"error: {rig['specimen']} comes within {gap:.1f} mm of the block's walls")
     to_board = pose_matrix(rig['pose']) @ local
@@ -439,15 +463,24 @@ def make_specimen(rig: dict) -> tuple[np.ndarray, np.ndarray]:
     return V @ to_board[:3, :3].T + to_board[:3, 3], F
 
 
-def make_container(rig: dict) -> bpy.types.Object:
-    """blender_set's glass block (Blender's cube) at the rig's size, IOR and place."""
+def make_container(rig: dict) -> list:
+    """blender_set's glass block (Blender's cube) at the rig's size, IOR and place, or its jar:
+    a glass cylinder with a cylinder of liquid inside (IOR liquid / glass: Cycles takes each
+    surface's IOR relative to the side its normal leaves)."""
     W, D, H = rig['size_mm']
-    ob, _ = bs.make_block((0.5 * W, 0.5 * D, 0.5 * H), -rig['pose'][2])   # yaw flips with y
-    ob.location = (rig['pose'][0], -rig['pose'][1], 0.5 * H)
-    for node in ob.data.materials[0].node_tree.nodes:
-        if node.bl_idname == 'ShaderNodeBsdfGlass':
-            node.inputs['IOR'].default_value = rig['ior']
-    return ob
+    if rig['container'] == 'jar':
+        wall = rig['wall_mm']
+        obs = [bs.make_cylinder(0.5 * W, 0.5 * H, 'jar_glass', rig['ior'])[0],
+               bs.make_cylinder(0.5 * W - wall, 0.5 * H - wall, 'jar_liquid', rig['liquid_ior'] / rig['ior'])[0]]
+    else:
+        ob, _ = bs.make_block((0.5 * W, 0.5 * D, 0.5 * H), -rig['pose'][2])   # yaw flips with y
+        for node in ob.data.materials[0].node_tree.nodes:
+            if node.bl_idname == 'ShaderNodeBsdfGlass':
+                node.inputs['IOR'].default_value = rig['ior']
+        obs = [ob]
+    for ob in obs:
+        ob.location = (rig['pose'][0], -rig['pose'][1], 0.5 * H)
+    return obs
 
 
 def make_camera(sc, K_r: np.ndarray, size: tuple[int, int]) -> bpy.types.Object:
@@ -565,8 +598,9 @@ def make_rig(args) -> dict:
     pose = (board_w * (0.5 + rng.uniform(-POSE_JITTER, POSE_JITTER)),
             board_h * (0.5 + rng.uniform(-POSE_JITTER, POSE_JITTER)), rng.uniform(*YAW_RANGE))
     K = intrinsics(width, height)
-    return dict(block=args.block, **block, dictionary=DICTIONARY, paper_margin_mm=PAPER_MARGIN_MM,
-                container='box', ior=args.ior, pose=[round(float(v), 3) for v in pose],
+    jar = dict(size_mm=JARS[args.block], wall_mm=JAR_WALL_MM, liquid_ior=LIQUID_IOR) if args.container == 'jar' else {}
+    return dict(block=args.block, **{**block, **jar}, dictionary=DICTIONARY, paper_margin_mm=PAPER_MARGIN_MM,
+                container=args.container, ior=args.ior, pose=[round(float(v), 3) for v in pose],
                 specimen=args.specimen, width=width, height=height, K=K, distortion=list(DISTORTION),
                 views=args.views, distance_mm=float(K[0, 0] * max(board_w, board_h) / (BOARD_SPAN * width)),
                 board_factor=args.board_factor,
@@ -576,9 +610,10 @@ def make_rig(args) -> dict:
 def capture_settings(rig: dict) -> dict:
     """capture.json as reneus_mi.capture.settings.to_json writes it."""
     x = lambda values: 'x'.join(f'{v:g}' for v in values)  # noqa: E731
+    jar = {'wall_mm': rig['wall_mm'], 'liquid_ior': rig['liquid_ior']} if rig['container'] == 'jar' else {}
     return {'board': 'charuco', 'squares': x(rig['squares']), 'square_mm': rig['square_mm'],
-            'marker_mm': rig['marker_mm'], 'dictionary': rig['dictionary'], 'container': 'box',
-            'size_mm': x(rig['size_mm']), 'ior': rig['ior']}
+            'marker_mm': rig['marker_mm'], 'dictionary': rig['dictionary'], 'container': SHAPES[rig['container']],
+            'size_mm': x(rig['size_mm']), 'ior': rig['ior'], **jar}
 
 
 def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
@@ -598,7 +633,7 @@ def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
     make_container(rig)
     V, F = make_specimen(rig)
     bs.write_ply(os.path.join(truth, 'specimen.ply'), V, F)
-    Vc, Fc = box_mesh(rig['size_mm'], rig['pose'])
+    Vc, Fc = container_mesh(SHAPES[rig['container']], rig['size_mm'], rig['pose'])
     bs.write_ply(os.path.join(truth, 'container.ply'), Vc, Fc)
     K_r, frame = pinhole_frame(K, dist, width, height)
     k = rig['board_factor']
@@ -619,7 +654,7 @@ def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
     if camera_error > 1e-3 * max(1.0, width / SIZE[0]):     # Blender's float32 lens, larger frames
         sys.exit(f"error: Blender's camera projects the board's corners {camera_error:.4f} px from K_r")
     setup_seconds = time.perf_counter() - start
-    print(f"{rig['specimen']} in the {rig['block']} block ({len(V)} vertices), {len(chosen)} views of "
+    print(f"{rig['specimen']} in the {rig['block']} {rig['container']} ({len(V)} vertices), {len(chosen)} views of "
           f"{width}x{height} (pinhole frame {frame[0]}x{frame[1]}), {rig['spp']} spp; set up in "
           f"{setup_seconds:.0f} s", flush=True)
 
@@ -644,7 +679,9 @@ def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
     rig.pop('block_corners')
     result = {'rig': {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in rig.items()},
               'K': K.tolist(), 'distortion': list(dist), 'width': width, 'height': height, 'views': views,
-              'container': {'shape': 'box', 'size_mm': [W, D, H], 'pose': list(rig['pose']), 'mesh': 'container.ply'},
+              'container': {'shape': SHAPES[rig['container']], 'size_mm': [W, D, H], 'pose': list(rig['pose']),
+                            'mesh': 'container.ply',
+                            **{k: rig[k] for k in ('wall_mm', 'liquid_ior') if k in rig}},
               'specimen': 'specimen.ply', 'limbs': limbs, 'ambient': AMBIENT,
               'board': {'white': PAPER_WHITE * AMBIENT, 'black': INK_BLACK * AMBIENT, 'contact_gap_mm': CONTACT_GAP},
               'frame': 'board (OpenCV ChArUco), millimetres',
@@ -662,12 +699,12 @@ def capture(rig: dict, photos: str, truth: str, preview: bool) -> dict:
 
 # --- --check: the photographs' corners against the truth ------------------------------------
 
-def block_outline(c2w: np.ndarray, K_cv: np.ndarray, dist, size_mm, pose) -> np.ndarray:
-    """The block's outline in a photograph (OpenCV pixels): the convex hull of its corners'
-    projections, lens included."""
+def block_outline(c2w: np.ndarray, K_cv: np.ndarray, dist, shape: str, size_mm, pose) -> np.ndarray:
+    """The container's outline in a photograph (OpenCV pixels): the convex hull of its
+    vertices' projections, lens included."""
     w2c = np.linalg.inv(c2w)
     rvec, _ = cv2.Rodrigues(w2c[:3, :3])
-    corners, _ = cv2.projectPoints(box_mesh(size_mm, pose)[0], rvec, w2c[:3, 3], K_cv, dist)
+    corners, _ = cv2.projectPoints(container_mesh(shape, size_mm, pose)[0], rvec, w2c[:3, 3], K_cv, dist)
     return cv2.convexHull(corners.reshape(-1, 2).astype(np.float32))
 
 
@@ -709,7 +746,7 @@ def check(photos: str, truth: str) -> dict:
     points = np.asarray(board.getChessboardCorners(), np.float64).reshape(-1, 3)
     points[:, 2] = meta['board'].get('contact_gap_mm', CONTACT_GAP)
     K_cv, dist = _opencv_K(np.array(meta['K'])), np.array(meta['distortion'])
-    block = meta['container']['size_mm'], meta['container']['pose']
+    block = meta['container']['shape'], meta['container']['size_mm'], meta['container']['pose']
     per_view, errors = [], []
     for view in meta['views']:
         gray = cv2.imread(os.path.join(photos, view['name']), cv2.IMREAD_GRAYSCALE)
@@ -784,6 +821,9 @@ def main(argv=None) -> None:
     parser.add_argument('--specimen', choices=list(SPECIMENS), default='ant')
     parser.add_argument('--block', choices=list(BLOCKS), default='small',
                         help='small: 40x30x22 mm on a 10x7 board of 24 mm; large: 60x45x30 mm on 12x9 of 25 mm')
+    parser.add_argument('--container', choices=list(SHAPES), default='box',
+                        help='box: a solid glass block; jar: a glass jar of ethanol on the same board '
+                             f'({JARS["small"][0]:g} x {JARS["small"][2]:g} mm, walls {JAR_WALL_MM:g} mm)')
     parser.add_argument('--size', default='x'.join(map(str, SIZE)), help='photograph size WxH (default: %(default)s)')
     parser.add_argument('--board-factor', type=int, default=1, metavar='K',
                         help='render the frame at 1/K of --size, scaled up, and only the block\'s region at '
