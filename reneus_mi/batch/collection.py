@@ -40,9 +40,9 @@ import warnings
 from dataclasses import dataclass, field
 
 from reneus_mi.batch.batch_folder import RESERVED
-from reneus_mi.capture.settings import CAPTURE_FILE
-from reneus_mi.capture.settings import CaptureSettings
+from reneus_mi.capture.settings import CAPTURE_FILE, CaptureSettings
 from reneus_mi.config import with_settings
+from reneus_mi.data.checks import IOR_EXPECTED, valid_ior
 from reneus_mi.export.package import IDENTIFIERS
 from reneus_mi.presets import preset
 from reneus_mi.utils import guards
@@ -189,8 +189,8 @@ def _from_row(row: dict, where: str, base: str, preset: str, settings: list[str]
             s.ior = float(value)
         except (TypeError, ValueError):
             s.ior = float('nan')
-        if not 1.0 < s.ior <= 3.0:
-            raise ReneusError(f'{where}: ior={value!r}; expected a number in (1, 3]')
+        if not valid_ior(s.ior):
+            raise ReneusError(f'{where}: ior={value!r}; expected {IOR_EXPECTED}')
     for key, value in row.items():
         if key in IDENTIFIERS:
             s.identifiers[key] = str(value)

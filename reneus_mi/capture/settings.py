@@ -17,6 +17,7 @@ import math
 import os
 import typing
 
+from reneus_mi.data.checks import IOR_EXPECTED, valid_ior
 from reneus_mi.geometry.shapes import CONTAINERS
 from reneus_mi.utils.cli import field_docs
 from reneus_mi.utils.errors import ReneusError
@@ -93,8 +94,8 @@ class CaptureSettings:
         sizes_make_sense = not problems     # the comparisons below need every size positive
         for name in ('ior', 'liquid_ior'):
             value = getattr(self, name)
-            if value is not None and not 1.0 < value <= 3.0:
-                problem(name, f"{name}={value:g}; expected a number in (1, 3] "
+            if value is not None and not valid_ior(value):
+                problem(name, f"{name}={value:g}; expected {IOR_EXPECTED} "
                               f"({'glass: about 1.5' if name == 'ior' else 'ethanol: 1.36'})")
         if sizes_make_sense:
             self._compare_sizes(problem)

@@ -47,14 +47,19 @@ AXES_CHECKED_BELOW, AXES_MARGIN = 0.99, 0.02
 MASK_SAMPLES = 1 << 16
 #: Accepted range of the container's index of refraction (glass ~1.5, diamond 2.42).
 IOR_RANGE = (1.0, 3.0)
+#: What an IOR must be, as the messages say it.
+IOR_EXPECTED = f'a number in ({IOR_RANGE[0]:g}, {IOR_RANGE[1]:g}]'
+
+
+def valid_ior(ior) -> bool:
+    """Whether ``ior`` is a number in IOR_RANGE (above its low end, up to its high end)."""
+    return not isinstance(ior, bool) and isinstance(ior, (int, float)) and IOR_RANGE[0] < ior <= IOR_RANGE[1]
 
 
 def check_ior(ior, where: str) -> float:
-    """The IOR as a float, or raise unless ``1 < ior <= 3``."""
-    if isinstance(ior, bool) or not isinstance(ior, (int, float)) or not (
-            IOR_RANGE[0] < ior <= IOR_RANGE[1]):
-        raise ReneusError(f"{where}: 'IOR' is {ior!r}; expected a number in "
-                          f"({IOR_RANGE[0]:g}, {IOR_RANGE[1]:g}] (glass: about 1.5)")
+    """The IOR as a float, or raise unless it is :func:`valid_ior`."""
+    if not valid_ior(ior):
+        raise ReneusError(f"{where}: 'IOR' is {ior!r}; expected {IOR_EXPECTED} (glass: about 1.5)")
     return float(ior)
 
 

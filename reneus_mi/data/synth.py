@@ -39,6 +39,7 @@ from reneus_mi.config import AMBIENT, GAMMA, IOR
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.dataset import Interface
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
+from reneus_mi.data.checks import IOR_EXPECTED, valid_ior
 from reneus_mi.data.masks import container_masks
 from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
@@ -228,8 +229,8 @@ def make_dataset(obj, out_dir: str, *, views: int = 60, res: int = 800, spp: int
             raise ReneusError(f"{name}={value!r}: expected a positive integer")
     if not margin >= 0:
         raise ReneusError(f"margin={margin!r}: expected a number >= 0")
-    if not 1.0 < ior <= 3.0:
-        raise ReneusError(f"ior={ior!r}: expected a number in (1, 3]")
+    if not valid_ior(ior):
+        raise ReneusError(f"ior={ior!r}: expected {IOR_EXPECTED}")
     if not ambient > 0:
         raise ReneusError(f"ambient={ambient!r}: expected a positive radiance")
     if absorption is not None:
