@@ -13,7 +13,7 @@ from reneus_mi.geometry.container import interpolated_normal
 from reneus_mi.render.frame import FieldFrame
 from reneus_mi.render.optics import interface
 from reneus_mi.render.properties import read_properties
-from reneus_mi.render.seeds import opaque_seed
+from reneus_mi.render.seeds import opaque_seed, salted_seed
 from reneus_mi.render.step_state import StepState
 from reneus_mi.render.surroundings import Surroundings, scene_parts, shapes_bbox, surroundings_of
 from reneus_mi.render.volume_rendering import volume_render
@@ -412,8 +412,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     def _random(self, n: int, salt: int) -> mi.Float:
         """``n`` uniform numbers of the step's seed and ``salt``: the same for the same step."""
-        seed = (((self.state.seed or 0) * 0x9E3779B1) ^ (salt + 1) * 0x85EBCA77) & 0xFFFFFFFFFFFFFFFF
-        return mi.PCG32(n, initstate=opaque_seed(seed)).next_float32()
+        return mi.PCG32(n, initstate=opaque_seed(salted_seed(self.state.seed or 0, salt))).next_float32()
 
     def _interface(self, surroundings, rays, hit, T, reflect: bool, depth: int = 0):
         """Spawn the next generation: reflected (β·T·R) and refracted (β·T·(1-R)) rays, each in

@@ -26,7 +26,17 @@ def step_seed(seed: int, step: int, stream: int) -> int:
     lane-shifted: step 3 drew 1007 of step 0's 1024 pixels, and 2000 steps of 1024 rays met
     37,081 distinct pixels of a 960x640 capture (1.8 % of the draws), so runs fitted a few
     thousand pixels, over and over, as the set drifted."""
-    z = (((seed & 0xFFFFFF) << 40) ^ ((step & 0xFFFFFFFF) << 4) ^ stream) & _MASK
+    return _mix((((seed & 0xFFFFFF) << 40) ^ ((step & 0xFFFFFFFF) << 4) ^ stream) & _MASK)
+
+
+def salted_seed(seed: int, salt: int) -> int:
+    """The seed of one more use ``salt`` of a step's seed (a bounce's Fresnel choice, a
+    roulette), mixed as :func:`step_seed` mixes, for the same reason."""
+    return _mix((seed ^ ((salt + 1) * 0x9E3779B97F4A7C15)) & _MASK)
+
+
+def _mix(z: int) -> int:
+    """SplitMix64's finaliser of a 64-bit integer."""
     z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
     z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK
     return z ^ (z >> 31)
