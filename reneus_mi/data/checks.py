@@ -117,7 +117,7 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _check_masks(container, K, c2w, height, width, files, given_masks, sources, name) -> None:
-    scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container)})
+    scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container.vertices, container.faces)})
     stride = max(1, int(np.ceil(np.sqrt(height * width / MASK_SAMPLES))))
     ys, xs = np.mgrid[0:height:stride, 0:width:stride]
     px = np.stack([xs.ravel(), ys.ravel()], axis=1)
@@ -146,7 +146,7 @@ def _check_masks(container, K, c2w, height, width, files, given_masks, sources, 
         # named where the turned file fits clearly better.
         turned = container.copy()
         turned.vertices = turned.vertices @ Y_UP_TO_Z_UP.T
-        turned_scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(turned)})
+        turned_scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(turned.vertices, turned.faces)})
         fit = float(np.mean([_iou(project(turned_scene, v), m[::stride, ::stride])
                              for v, m in given_masks.items()]))
         if fit > mean + AXES_MARGIN:

@@ -44,6 +44,7 @@ from reneus_mi.data.masks import container_masks
 from reneus_mi.data.objects import load_object, normalize
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
 from reneus_mi.geometry.container import container_shape, shading_mesh
+from reneus_mi.geometry.mesh import mitsuba_mesh
 from reneus_mi.geometry.shapes import CONTAINERS, write_container
 from reneus_mi.render.interfaces import absorbing_medium
 from reneus_mi.utils import guards, limits
@@ -175,16 +176,9 @@ def encode(linear: np.ndarray) -> np.ndarray:
 
 def write_object(mesh: trimesh.Trimesh, path: str) -> None:
     """Write ``mesh`` as a PLY with its linear albedo in Mitsuba's ``vertex_color``."""
-    vertices = np.asarray(mesh.vertices, np.float32)
-    faces = np.asarray(mesh.faces, np.uint32)
     # Vertex colours are display values (like a photograph of the material).
     albedo = (np.asarray(mesh.visual.vertex_colors[:, :3], np.float64) / 255.0) ** GAMMA
-    shape = mi.Mesh('object', len(vertices), len(faces), has_vertex_normals=True)
-    params = mi.traverse(shape)
-    params['vertex_positions'] = mi.Float(vertices.ravel())
-    params['faces'] = mi.UInt32(faces.ravel())
-    params.update()
-    shape.recompute_vertex_normals()
+    shape = mitsuba_mesh(mesh.vertices, mesh.faces, 'object', normals='recompute')
     shape.add_attribute('vertex_color', 3, mi.Float(albedo.astype(np.float32).ravel()))
     atomic_mitsuba_write(path, shape.write_ply)
 

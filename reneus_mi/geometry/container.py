@@ -179,13 +179,7 @@ def container_shape(path: str, bsdf: dict | None = None) -> mi.Mesh:
             props['bsdf'] = bsdf
         return mi.load_dict(props)
     mesh = load_container(path)
-    shape = mi.Mesh('container', len(mesh.vertices), len(mesh.faces),
-                    props=_props(bsdf, None), has_vertex_normals=False)
-    params = mi.traverse(shape)
-    params['vertex_positions'] = mi.Float(np.ravel(mesh.vertices).astype(np.float32))
-    params['faces'] = mi.UInt32(np.ravel(mesh.faces).astype(np.uint32))
-    params.update()
-    return shape
+    return mitsuba_mesh(mesh.vertices, mesh.faces, props=_props(bsdf, None))
 
 
 def mitsuba_reads(path: str) -> bool:
@@ -210,14 +204,8 @@ def shading_mesh(path: str, crease_angle: float = CREASE_ANGLE, bsdf: dict | Non
     params = mi.traverse(loaded)
     corners = np.array(params['vertex_positions']).reshape(-1, 3)[np.array(params['faces']).reshape(-1, 3)]
     normals = np.array(shading_normals(loaded, crease_angle)).reshape(-1, 3)
-    n_faces = len(corners)
-    shape = mi.Mesh('container', 3 * n_faces, n_faces, has_vertex_normals=True, props=_props(bsdf, interior))
-    out = mi.traverse(shape)
-    out['vertex_positions'] = mi.Float(corners.astype(np.float32).ravel())
-    out['faces'] = mi.UInt32(np.arange(3 * n_faces, dtype=np.uint32))
-    out['vertex_normals'] = mi.Float(normals.ravel())
-    out.update()
-    return shape
+    return mitsuba_mesh(corners.reshape(-1, 3), np.arange(corners.size // 3).reshape(-1, 3),
+                        props=_props(bsdf, interior), normals=normals)
 
 
 def _props(bsdf: dict | None, interior: dict | None) -> mi.Properties:
@@ -279,7 +267,7 @@ def inside(points, container: trimesh.Trimesh) -> np.ndarray:
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
 
-    scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container)})
+    scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container.vertices, container.faces)})
 
     # Every crossing is a distinct face, so a ray that has not left the
     # container after this many hits is stuck re-hitting one spot.

@@ -109,11 +109,19 @@ def signed_volume(vertices, faces) -> float:
     return float(np.einsum('ij,ij->i', v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
 
 
-def mitsuba_mesh(mesh: trimesh.Trimesh, name: str = 'container') -> mi.Mesh:
-    """The triangles of ``mesh`` as a Mitsuba shape (for ray tests)."""
-    shape = mi.Mesh(name, len(mesh.vertices), len(mesh.faces))
+def mitsuba_mesh(vertices, faces, name: str = 'container', props: mi.Properties | None = None,
+                 normals=None) -> mi.Mesh:
+    """Triangles (an (n, 3) array of vertices, one of faces) as a Mitsuba mesh: ``props`` its
+    BSDF and media; ``normals`` None (none), an (n, 3) array, or 'recompute' (Mitsuba's own)."""
+    has_normals = normals is not None
+    shape = mi.Mesh(name, len(vertices), len(faces), has_vertex_normals=has_normals,
+                    **({} if props is None else {'props': props}))
     params = mi.traverse(shape)
-    params['vertex_positions'] = mi.Float(np.ravel(mesh.vertices).astype(np.float32))
-    params['faces'] = mi.UInt32(np.ravel(mesh.faces).astype(np.uint32))
+    params['vertex_positions'] = mi.Float(np.ravel(vertices).astype(np.float32))
+    params['faces'] = mi.UInt32(np.ravel(faces).astype(np.uint32))
+    if has_normals and not isinstance(normals, str):
+        params['vertex_normals'] = mi.Float(np.ravel(normals).astype(np.float32))
     params.update()
+    if isinstance(normals, str):
+        shape.recompute_vertex_normals()
     return shape
