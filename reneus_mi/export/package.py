@@ -101,8 +101,7 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
         closed = _watertight(mesh)
         atomic_export(closed.pop('mesh'), os.path.join(out, f'{name}_watertight.ply'))
         files['watertight_mesh'] = f'{name}_watertight.ply'
-    with open(folder.config) as f:
-        config = json.load(f)
+    config = folder.read_config()
     units = result.get('units')
     created = datetime.datetime.fromtimestamp(os.path.getmtime(folder.result), datetime.timezone.utc)
     metadata = {

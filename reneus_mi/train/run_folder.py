@@ -43,7 +43,7 @@ import fcntl
 from reneus_mi.train.checkpoint import load_meta
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError
-from reneus_mi.utils.io import atomic_folder, atomic_write_text, is_temporary
+from reneus_mi.utils.io import atomic_folder, atomic_write_text, is_temporary, load_json
 
 #: The states of a run folder, as :meth:`RunFolder.state` names them.
 STATES = ('new', 'running', 'resumable', 'finished', 'failed')
@@ -237,26 +237,16 @@ class RunFolder:
     # ----------------------------------------------------- config, result
     def read_config(self) -> dict:
         """The run's recorded configuration (``config.json``)."""
-        try:
-            with open(self.config) as f:
-                return json.load(f)
-        except FileNotFoundError:
-            raise ReneusError(f'{self.path}: nothing to resume (no {RunFolder.config})') from None
-        except (OSError, ValueError) as e:
-            raise ReneusError(f'{self.config}: unreadable ({e})') from None
+        if not os.path.exists(self.config):
+            raise ReneusError(f'{self.path}: nothing to resume (no {RunFolder.config})')
+        return load_json(self.config, "run's configuration")
 
     def write_config(self, values: dict) -> None:
         atomic_write_text(self.config, json.dumps(values, indent=2))
 
     def read_result(self) -> dict | None:
         """The run's result, None while it has none (new, running, killed)."""
-        try:
-            with open(self.result) as f:
-                return json.load(f)
-        except FileNotFoundError:
-            return None
-        except (OSError, ValueError) as e:
-            raise ReneusError(f'{self.result}: unreadable ({e})') from None
+        return load_json(self.result, "run's result") if os.path.exists(self.result) else None
 
     def write_result(self, result: dict) -> None:
         atomic_write_text(self.result, json.dumps(result, indent=2))
