@@ -32,8 +32,8 @@ world is the same turned 180 degrees about x, so that its z is up):
 - the block: a W x D x H box of Glass BSDF (roughness 0) standing on the board at a place
   ``(x, y, yaw)`` near its centre; caustics on, so its shadow and caustics fall on the print;
   or (``--container jar``) a closed glass jar, a cylinder whose walls, lid and floor are
-  ``JAR_WALL_MM`` thick, filled with ethanol (IOR 1.36), stated to the capture as a cylinder
-  with ``wall_mm`` and ``liquid_ior``;
+  ``JAR_WALL_MM`` thick, filled with ethanol (IOR 1.36), its rims sharp, stated to the capture
+  as a cylinder with ``wall_mm``, ``liquid_ior`` and ``edge_mm`` 0;
 - the specimen: procedural, one watertight surface (voxel remesh), diffuse with a noise
   albedo, hanging at mid-height: ``ant`` (head, thorax, gaster, six jointed legs 0.37-0.53
   mm thick in the small block, elbowed antennae of 0.33 mm), ``ant_thin`` (the same ant with legs
@@ -610,7 +610,9 @@ def make_rig(args) -> dict:
 def capture_settings(rig: dict) -> dict:
     """capture.json as reneus_mi.capture.settings.to_json writes it."""
     x = lambda values: 'x'.join(f'{v:g}' for v in values)  # noqa: E731
-    jar = {'wall_mm': rig['wall_mm'], 'liquid_ior': rig['liquid_ior']} if rig['container'] == 'jar' else {}
+    # A jar's rims are sharp here, as Blender's cylinder is: the photographer says so.
+    jar = ({'wall_mm': rig['wall_mm'], 'liquid_ior': rig['liquid_ior'], 'edge_mm': 0.0}
+           if rig['container'] == 'jar' else {})
     return {'board': 'charuco', 'squares': x(rig['squares']), 'square_mm': rig['square_mm'],
             'marker_mm': rig['marker_mm'], 'dictionary': rig['dictionary'], 'container': SHAPES[rig['container']],
             'size_mm': x(rig['size_mm']), 'ior': rig['ior'], **jar}

@@ -103,7 +103,7 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
     where ``s`` has the size measured in place of ``auto``."""
     w, h = frame
     windows = views.windows
-    placed = interfaces(s.container, s.size_mm, s.ior, s.wall_mm, s.liquid_ior, reg.pose)
+    placed = interfaces(s.container, s.size_mm, s.ior, s.wall_mm, s.liquid_ior, reg.pose, s.edge_mm)
     for interface, mesh in placed:
         write_container(mesh, os.path.join(out, interface.mesh), normals=s.container != 'box')
     write_image(os.path.join(out, 'board.png'), board.pattern(BOARD_PX_PER_MM).astype(np.float32) / 255.0)
@@ -161,7 +161,7 @@ def write_overlays(out: str, images, K, c2w, board: Board, cal: Calibration, s: 
                    measured=None, pose=None, residuals=None) -> None:
     """One overlay per photograph into ``out/overlays``."""
     segments = [segment for inset in ((0.0,) if s.wall_mm is None else (0.0, s.wall_mm))
-                for segment in overlay.wireframe(s.container, local_mesh(s.container, s.size_mm, inset))]
+                for segment in overlay.wireframe(s.container, local_mesh(s.container, s.size_mm, inset, s.edge_mm))]
     for i, view in enumerate(tqdm(cal.views, desc='overlays', unit='photo', disable=None, leave=False)):
         text = f'{view.name}: {int(view.used.sum())} corners, RMS {view.rms:.2f} px'
         if residuals is not None and np.isfinite(residuals[i]):

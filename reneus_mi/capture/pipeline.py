@@ -120,10 +120,10 @@ def load_views(reduced: dict, cal: Calibration, out_size, K_out) -> tuple[np.nda
     return np.stack(images), np.stack(valid)
 
 
-def seen_through(cal: Calibration, shape: str, size, pose):
+def seen_through(cal: Calibration, s: settings_mod.CaptureSettings, pose):
     """``exclude`` for :func:`calibrate`: corners inside the container's projection (with the
     lens, in the photograph) or within :data:`EXCLUSION_MARGIN_PX` of it."""
-    hull = np.asarray(board_mesh(shape, size, pose).convex_hull.vertices)
+    hull = np.asarray(board_mesh(s.container, s.size_mm, pose, edge=s.edge_mm).convex_hull.vertices)
     by_name = {v.name: i for i, v in enumerate(cal.views)}
 
     def exclude(name, pixels):
@@ -138,7 +138,7 @@ def seen_through(cal: Calibration, shape: str, size, pose):
 def _warn_uncovered(names, valid, K, c2w, s, pose) -> None:
     """Warn where the container's projection (the training mask) reaches pixels that the
     undistorted photograph does not cover."""
-    outline = Outline(s.container, s.size_mm, K, c2w)
+    outline = Outline(s.container, s.size_mm, K, c2w, s.edge_mm)
     for v, name in enumerate(names):
         mask = np.zeros(valid[v].shape, np.uint8)
         cv2.fillConvexPoly(mask, np.round(outline.polygon(pose, v) - 0.5).astype(np.int32), 1)
@@ -171,7 +171,8 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     c2w = np.stack([v.c2w for v in cal.views])
     names = [v.name for v in cal.views]
     try:
-        reg = register(images, valid, K_work, c2w, board, s.container, s.size_mm, pose=s.container_pose)
+        reg = register(images, valid, K_work, c2w, board, s.container, s.size_mm, pose=s.container_pose,
+                       edge=s.edge_mm)
     except ReneusError as e:
         # The user must see why: the overlays, with what each photograph showed.
         reg_failed = getattr(e, 'registration', None)
@@ -182,7 +183,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     if reg.size_measured:
         s = dataclasses.replace(s, size_mm=reg.best_size)
     # Corners seen through the glass leave the calibration; the place is refined from the first.
-    exclude = seen_through(cal, s.container, s.size_mm, reg.pose)
+    exclude = seen_through(cal, s, reg.pose)
     cal = calibrate(board, {n: detections[n] for n in names}, size, exclude=exclude)
     left_out.update({n: f'{r} (once the corners seen through the container were left out)'
                      for n, r in cal.dropped.items()})
@@ -208,7 +209,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     images, valid = load_views(reduced, cal, kept, K_work)
     c2w = np.stack([v.c2w for v in cal.views])
     reg = register(images, valid, K_work, c2w, board, s.container, given.size_mm, pose=s.container_pose,
-                   start=reg.pose)
+                   start=reg.pose, edge=s.edge_mm)
     if reg.size_measured:
         s = dataclasses.replace(s, size_mm=reg.best_size)
     light = measure(images, valid, K_work, c2w, board, reg.measured, names)
@@ -217,7 +218,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     export.write_overlays(out, images, K_work, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
     del images, valid
-    hull = np.asarray(board_mesh(s.container, s.size_mm, reg.pose).convex_hull.vertices)
+    hull = np.asarray(board_mesh(s.container, s.size_mm, reg.pose, edge=s.edge_mm).convex_hull.vertices)
     windows = container_windows(hull, K_out, c2w, (width, height))
     by_name = {p.name: p for p in shots}
 

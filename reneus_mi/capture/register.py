@@ -150,8 +150,8 @@ def changed_region(image: np.ndarray, white: np.ndarray, on_board: np.ndarray, s
 class Outline:
     """The projected outline of the container at a place on the board, in every view."""
 
-    def __init__(self, shape: str, size, K: np.ndarray, c2w: np.ndarray):
-        mesh = local_mesh(shape, size)
+    def __init__(self, shape: str, size, K: np.ndarray, c2w: np.ndarray, edge: float | None = None):
+        mesh = local_mesh(shape, size, edge=edge)
         hull = np.asarray(mesh.convex_hull.vertices)
         # A smooth container's hull has thousands of vertices: its outline needs far fewer.
         if len(hull) > 512:
@@ -228,8 +228,10 @@ def _wrap(yaw: float, period: float) -> float:
 
 
 def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarray, board: Board,
-             shape: str, size, *, pose=None, start=None, measured: np.ndarray | None = None) -> Registration:
-    """Find the container (``shape``, outer ``size`` in mm) standing on ``board``.
+             shape: str, size, *, pose=None, start=None, measured: np.ndarray | None = None,
+             edge: float | None = None) -> Registration:
+    """Find the container (``shape``, outer ``size`` in mm, ``edge`` the radius of its rounded
+    edges, see :func:`~reneus_mi.capture.placement.local_mesh`) standing on ``board``.
 
     ``images`` (N,h,w,3) are the undistorted photographs (display values), ``valid`` where
     they hold photograph, ``K`` their pinhole intrinsics and ``c2w`` (N,4,4) their cameras in
@@ -262,8 +264,8 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
         raise err
     measured_size = size == AUTO
     if measured_size:
-        size, start = _measure_size(measured, trusted, K, c2w, seen, shape, start)
-    outline = Outline(shape, size, K, c2w)
+        size, start = _measure_size(measured, trusted, K, c2w, seen, shape, start, edge)
+    outline = Outline(shape, size, K, c2w, edge)
     fit = _Fit(outline, measured, trusted, seen)
     if pose is None:
         pose = _search(fit, measured, K, c2w, seen, shape, size, start)
@@ -354,7 +356,7 @@ def _search(fit: _Fit, measured, K, c2w, seen, shape: str, size, start) -> tuple
     return min((_refine(fit, p0, clip, period) for p0 in starts), key=lambda r: r[0])[1]
 
 
-def _measure_size(measured, trusted, K, c2w, seen, shape: str, start) -> tuple[tuple, tuple]:
+def _measure_size(measured, trusted, K, c2w, seen, shape: str, start, edge) -> tuple[tuple, tuple]:
     """The outer size the silhouettes suggest (``--size-mm auto``), and the place it fits at:
     from a cube as wide as the silhouettes' median apparent width, :data:`SIZE_ROUNDS` rounds of
     a place for the size, then the size and the place together."""
@@ -363,7 +365,7 @@ def _measure_size(measured, trusted, K, c2w, seen, shape: str, start) -> tuple[t
     side = 0.8 * float(np.median(widths))
     size, pose = (side, side, 0.8 * side), start
     for _ in range(SIZE_ROUNDS):
-        fit = _Fit(Outline(shape, size, K, c2w), measured, trusted, seen)
+        fit = _Fit(Outline(shape, size, K, c2w, edge), measured, trusted, seen)
         pose = _search(fit, measured, K, c2w, seen, shape, size, pose)
         clip = TRUNCATION * np.array([fit.outline.size(pose, v) for v in seen])
         size = _best_size(fit, pose, size, shape, clip)[0]

@@ -47,6 +47,9 @@ class CaptureSettings:
     """Outer size of the container in millimetres, WxDxH: its footprint on the board and its
     height (a cylinder: diameter x diameter x height); auto: measured from the photographs
     (report.json gives it with its uncertainty; calipers are better)."""
+    edge_mm: float | None = None
+    """Radius in millimetres of a rounded block's edges or of a jar's rims (0: sharp); not given:
+    0.3 x the container's smallest half-size (a polished block, a moulded jar)."""
     ior: float | None = None
     """Index of refraction of the container (glass about 1.5, acrylic 1.49, epoxy resin 1.55)."""
     wall_mm: float | None = None
@@ -85,6 +88,12 @@ class CaptureSettings:
         columns, rows = self.squares
         if min(columns, rows) < 3:
             problem('squares', f"squares={columns}x{rows}; expected at least 3x3 squares")
+        if self.edge_mm is not None:
+            if not self.edge_mm >= 0:
+                problem('edge_mm', f"edge_mm={self.edge_mm:g}; expected a radius >= 0 in millimetres")
+            elif self.container == 'box' and self.edge_mm > 0:
+                problem('edge_mm', f"edge_mm={self.edge_mm:g} for a box; expected --container rounded for "
+                                   "a block with rounded edges")
         for name in ('square_mm', 'marker_mm', 'wall_mm'):
             value = getattr(self, name)
             if value is not None and not value > 0:

@@ -66,7 +66,7 @@ def round_box(p, half, rounding):
     return outside + dr.minimum(dr.maximum(dr.maximum(q.x, q.y), q.z), 0.0) - rounding
 
 
-def container_mesh(kind: str, half, grow: float = 0.0) -> trimesh.Trimesh:
+def container_mesh(kind: str, half, grow: float = 0.0, edge: float | None = None) -> trimesh.Trimesh:
     """A closed container about the origin around the box of half-extents ``half``.
 
     ``box`` is that box (flat faces); ``rounded`` the box with edges and corners
@@ -74,14 +74,15 @@ def container_mesh(kind: str, half, grow: float = 0.0) -> trimesh.Trimesh:
     rounded. The smooth ones carry exact vertex normals (``vertex_normals``, from
     their SDF), which the renderers use as shading normals. ``grow`` moves the surface
     that far out everywhere (a box's faces, a smooth one's offset surface): the outside of
-    a wall that thick around the container of ``grow`` 0.
+    a wall that thick around the container of ``grow`` 0. ``edge``: the radius of the rounded
+    edges or rims (0: sharp; None: ROUNDING x the smallest half-extent).
     """
     half = np.asarray(half, np.float64)
     if kind == 'box':
         return trimesh.creation.box(extents=2.0 * (half + grow))
     if kind not in CONTAINERS:
         raise ReneusError(f"container={kind!r}: expected one of {', '.join(CONTAINERS)}")
-    r = ROUNDING * half.min()
+    r = ROUNDING * half.min() if edge is None else float(edge)
     if kind == 'rounded':
         # Rounding cuts into the box: grow it so the object's corners stay inside.
         size = half + r * (1.0 - 1.0 / np.sqrt(3.0))

@@ -84,3 +84,32 @@ def test_dataset_describes_the_photographs(hollow, tmp_path):
         error[model] = float(np.mean(d))
     print(hollow['kind'], error)
     assert error['nested'] < MEDIAN_ERROR and error['solid'] > SOLID_WORSE[hollow['kind']] * error['nested'], error
+
+
+@pytest.mark.parametrize('shape, size', [('cylinder', (40.0, 40.0, 30.0)), ('rounded', (40.0, 30.0, 22.0))])
+def test_stated_edge_radius_keeps_the_outer_size(shape, size):
+    """A jar's rims or a block's edges as stated: sharp (0) or 2 mm, the mesh keeps the outer size
+    (to the marching-cubes cell) and its rims cut off what the radius says; not stated, the
+    generator's rounding (0.3 of the inner box's smallest half-size: 3.5 mm for the jar)."""
+    from reneus_mi.capture.placement import local_mesh
+    cell = 2.0 * max(size) / 2 / 96
+    for edge in (0.0, 2.0, None):
+        mesh = local_mesh(shape, size, edge=edge)
+        assert np.allclose(mesh.extents, size, atol=cell), (edge, mesh.extents)
+    if shape == 'cylinder':
+        # The rim's rounding leaves the top at the full radius only inside radius - edge.
+        top = lambda m: np.linalg.norm(m.vertices[np.isclose(m.vertices[:, 2], -size[2], atol=0.05)][:, :2],  # noqa: E731
+                                       axis=1).max()
+        assert top(local_mesh(shape, size, edge=0.0)) > 20.0 - cell
+        assert abs(top(local_mesh(shape, size, edge=2.0)) - 18.0) < 1.5 * cell
+        assert abs(top(local_mesh(shape, size)) - (20.0 - 0.3 * 15.0 / 1.3)) < 1.5 * cell
+
+
+def test_edge_radius_of_a_box_is_refused():
+    from reneus_mi.capture.settings import CaptureSettings
+    from reneus_mi.utils.errors import ReneusError
+    given = dict(squares=(10, 7), square_mm=24.0, marker_mm=18.0, size_mm=(40.0, 30.0, 22.0), ior=1.45)
+    with pytest.raises(ReneusError, match=r'edge_mm=1 for a box; expected --container rounded'):
+        CaptureSettings(container='box', edge_mm=1.0, **given).check('capture.json')
+    with pytest.raises(ReneusError, match=r'edge_mm=-1; expected a radius >= 0'):
+        CaptureSettings(container='cylinder', edge_mm=-1.0, **given).check('capture.json')
