@@ -94,6 +94,9 @@ class CaptureSettings:
             elif self.container == 'box' and self.edge_mm > 0:
                 problem('edge_mm', f"edge_mm={self.edge_mm:g} for a box; expected --container rounded for "
                                    "a block with rounded edges")
+            elif self.size_mm not in (None, AUTO) and not self.edge_mm < 0.5 * min(self.size_mm):
+                problem('edge_mm', f"edge_mm={self.edge_mm:g} and size_mm={_x(self.size_mm)} contradict each "
+                                   "other; expected a radius below half the smallest side")
         for name in ('square_mm', 'marker_mm', 'wall_mm'):
             value = getattr(self, name)
             if value is not None and not value > 0:

@@ -105,7 +105,7 @@ def test_stated_edge_radius_keeps_the_outer_size(shape, size):
         assert abs(top(local_mesh(shape, size)) - (20.0 - 0.3 * 15.0 / 1.3)) < 1.5 * cell
 
 
-def test_edge_radius_of_a_box_is_refused():
+def test_edge_radius_of_a_box_or_past_half_a_side_is_refused():
     from reneus_mi.capture.settings import CaptureSettings
     from reneus_mi.utils.errors import ReneusError
     given = dict(squares=(10, 7), square_mm=24.0, marker_mm=18.0, size_mm=(40.0, 30.0, 22.0), ior=1.45)
@@ -113,3 +113,5 @@ def test_edge_radius_of_a_box_is_refused():
         CaptureSettings(container='box', edge_mm=1.0, **given).check('capture.json')
     with pytest.raises(ReneusError, match=r'edge_mm=-1; expected a radius >= 0'):
         CaptureSettings(container='cylinder', edge_mm=-1.0, **given).check('capture.json')
+    with pytest.raises(ReneusError, match=r'edge_mm=11 and size_mm=40x30x22 contradict .* below half the smallest side'):
+        CaptureSettings(container='rounded', edge_mm=11.0, **given).check('capture.json')
