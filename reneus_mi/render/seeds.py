@@ -9,8 +9,9 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-#: Streams of the step's random numbers: the pixels of the batch, the samples' jitter.
-PIXELS, JITTER = 0, 1
+#: Streams of the step's random numbers: the pixels of the batch, the samples' jitter, the
+#: points of a pixel's rays within its strata.
+PIXELS, JITTER, STRATA = 0, 1, 2
 
 
 #: 2^64: PCG32's state is a 64-bit integer.

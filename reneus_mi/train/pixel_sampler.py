@@ -34,7 +34,7 @@ import mitsuba as mi
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
-from reneus_mi.render.seeds import PIXELS, opaque_seed, step_seed
+from reneus_mi.render.seeds import PIXELS, STRATA, opaque_seed, step_seed
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.validate import check_numbers
 
@@ -54,11 +54,24 @@ class PixelSamplerConfig:
     error_refresh: int = 32
     """Steps between rebuilds of the error's distribution over blocks of pixels (a sum over
     every pixel)."""
+    rays_per_pixel: int = 1
+    """Rays through each drawn pixel (a square: 1, 4, 9, ...; one per stratum of the pixel),
+    whose mean radiance is the pixel's value that the loss compares with the photograph's
+    (the batch's rays are shared among fewer pixels). One ray: its colour against the pixel
+    favours whichever of leg or background covers more of the pixel, and a thin part whose
+    pixels it covers less than half is fitted away."""
+    blur: float = 0.0
+    """Standard deviation, in pixels, of the camera's blur beyond the pixel's area (optics,
+    demosaicing, resampling): each ray's point moves by a normal draw of it, so that a pixel's
+    rays see what the photograph's pixel saw (0: the pixel's area alone)."""
 
     def __post_init__(self):
-        check_numbers(self, positive=('error_refresh',))
+        check_numbers(self, positive=('error_refresh', 'rays_per_pixel'), at_least_zero=('blur',))
         if not 0.0 <= self.error_share <= 1.0:
             raise ReneusError(f'error_share={self.error_share}: expected a share in [0, 1]')
+        if round(self.rays_per_pixel ** 0.5) ** 2 != self.rays_per_pixel:
+            raise ReneusError(f'rays_per_pixel={self.rays_per_pixel}: expected a square (1, 4, 9, ...): '
+                              'one ray per stratum of a k x k grid of the pixel')
 
 
 #: Bytes per photograph pixel that the sampler holds beyond the dataset, at most (a masked
@@ -101,8 +114,11 @@ class PixelSampler:
         self.drawn: mi.UInt32 | None = None
 
     def batch(self, step: int, n: int) -> tuple[mi.Ray3f, mi.Color3f]:
-        """``n`` camera rays through random masked pixels, and the photographs' colours there."""
+        """About ``n`` camera rays through random masked pixels (``rays_per_pixel`` each, ray k
+        of every pixel in the k-th run of lanes), and the photographs' colours at the pixels."""
         cfg = self.config
+        per = cfg.rays_per_pixel
+        n = max(n // per, 1)
         rng = mi.PCG32(n, initstate=opaque_seed(step_seed(self.seed, step, PIXELS)))
         slot = rng.next_uint32_bounded(self.n_pixels)
         if self.error is not None:
@@ -113,8 +129,33 @@ class PixelSampler:
             slot = by_error if uniform is None else dr.select(uniform, slot, by_error)
             self.drawn = slot
         index = dr.gather(mi.UInt32, self.pixels, slot)
-        offset = (rng.next_float32(), rng.next_float32()) if cfg.jitter else (0.5, 0.5)
-        return self.rays(index, offset), self.color(slot)
+        side = round(per ** 0.5)
+        lane = dr.arange(mi.UInt32, n * per)
+        k = lane // n
+        draws = rng if per == 1 else mi.PCG32(n * per, initstate=opaque_seed(step_seed(self.seed, step, STRATA)))
+        u, v = (draws.next_float32(), draws.next_float32()) if cfg.jitter else (0.5, 0.5)
+        x, y = (mi.Float(k % side) + u) / side, (mi.Float(k // side) + v) / side
+        if cfg.blur > 0.0:
+            # Box-Muller: a normal displacement of standard deviation ``blur`` pixels.
+            radius = cfg.blur * dr.sqrt(-2.0 * dr.log(1.0 - draws.next_float32()))
+            angle = 2.0 * dr.pi * draws.next_float32()
+            x, y = x + radius * dr.cos(angle), y + radius * dr.sin(angle)
+        if per > 1:
+            index = dr.gather(mi.UInt32, index, lane % n)
+        return self.rays(index, (x, y)), self.color(slot)
+
+    def pixel_mean(self, value):
+        """Per drawn pixel, the mean of a per-ray value of the last :meth:`batch` over the
+        pixel's rays (the value itself with one ray per pixel)."""
+        per = self.config.rays_per_pixel
+        if per == 1:
+            return value
+        n = dr.width(value) // per
+        lane = dr.arange(mi.UInt32, n)
+        total = dr.gather(type(value), value, lane)
+        for k in range(1, per):
+            total += dr.gather(type(value), value, lane + k * n)
+        return total / per
 
     def _by_error(self, rng: mi.PCG32) -> mi.UInt32:
         """Slots drawn in proportion to their errors: a block by the prefix sum of the last
@@ -137,7 +178,7 @@ class PixelSampler:
         return first + k
 
     def uniform_lanes(self, n: int) -> mi.Bool | None:
-        """Which of a batch's ``n`` rays are drawn uniformly (None: all of them, or none)."""
+        """Which of a batch's ``n`` pixels are drawn uniformly (None: all of them, or none)."""
         if self.error is None or self.config.error_share == 1.0:
             return None
         return mi.Float(dr.arange(mi.UInt32, n)) < dr.opaque(mi.Float, (1.0 - self.config.error_share) * n)

@@ -19,7 +19,7 @@ import math
 import os
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import drjit as dr
 from drjit.opt import GradScaler
@@ -258,11 +258,14 @@ class Trainer:
         batch = self.batch
         ray, target = self.pixels.batch(it, batch)
         result = self.integrator.render_rays(self.scene, ray)
+        if self.pixels.config.rays_per_pixel > 1:
+            # A pixel's value: its rays' mean radiance, tone-mapped as the camera's sensor does.
+            result = replace(result, color=self.integrator.tonemap(self.pixels.pixel_mean(result.L)))
         self.pixels.record(result.color, target)
         silhouette = None if self.silhouette is None else self.silhouette(it, self.surroundings.pose)
         terms = losses.loss_dict(result, target, cfg, silhouette)
         loss = losses.total(terms)
-        mse = losses.mse(result.color, target, self.pixels.uniform_lanes(batch))
+        mse = losses.mse(result.color, target, self.pixels.uniform_lanes(dr.width(target)))
         samples = dr.sum(result.n_samples)
         # Scheduled, the loss terms are computed in the launch that evaluates
         # the gradients rather than in a forward pass of their own.

@@ -6,6 +6,7 @@ import pytest
 
 from reneus_mi.data import Dataset
 from reneus_mi.train.pixel_sampler import ERROR_BLOCK, PixelSampler, PixelSamplerConfig
+from reneus_mi.utils.errors import ReneusError
 
 
 def _dataset(images: np.ndarray, masks: np.ndarray) -> Dataset:
@@ -13,6 +14,19 @@ def _dataset(images: np.ndarray, masks: np.ndarray) -> Dataset:
     K = np.tile(np.array([[w, 0, w / 2], [0, w, h / 2], [0, 0, 1]], np.float64), (n, 1, 1))
     return Dataset(images=images, masks=masks, K=K, c2w=np.tile(np.eye(4), (n, 1, 1)),
                    names=[f'{i}.png' for i in range(n)], root='memory')
+
+
+def _points_in_pixels(sampler: PixelSampler, ds: Dataset, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where a batch's rays cross the image plane, relative to their pixels' corners."""
+    ray, _ = sampler.batch(0, n)
+    d = np.asarray(ray.d).T
+    K = ds.K[0]                     # identity cameras: the pixel position is K d
+    x = d[:, 0] / d[:, 2] * K[0, 0] + K[0, 2]
+    y = d[:, 1] / d[:, 2] * K[1, 1] + K[1, 2]
+    h, w = ds.masks.shape[1:]
+    rest = np.asarray(sampler.pixels)[np.asarray(sampler.drawn)] % (h * w)
+    per = sampler.config.rays_per_pixel
+    return x - np.tile(rest % w, per), y - np.tile(rest // w, per)
 
 
 @pytest.mark.parametrize('dtype, tolerance', [(np.uint8, 0.0), (np.uint16, 2.0 ** -11), (np.float32, 0.0)])
@@ -90,9 +104,11 @@ def test_draws_within_a_block_follow_errors_now():
     masks = np.ones((1, 8, 2 * ERROR_BLOCK // 8), bool)
     sampler = PixelSampler(_dataset(np.zeros(masks.shape + (3,), np.uint8), masks), seed=4,
                            config=PixelSamplerConfig(jitter=False, error_share=1.0, error_refresh=10 ** 6))
-    error = np.ones(2 * ERROR_BLOCK, np.float32)
-    sampler.error = mi.Float(error)
+    # Dr.Jit's CPU backend copies a NumPy array into a variable asynchronously: each array
+    # here is left as it was given.
+    sampler.error = mi.Float(np.ones(2 * ERROR_BLOCK, np.float32))
     sampler.batch(0, 16)                                # the blocks' sums: equal
+    error = np.ones(2 * ERROR_BLOCK, np.float32)
     error[:ERROR_BLOCK] = 0.0
     error[5] = 1.0                                      # the first block now has one pixel in error
     sampler.error = mi.Float(error)
@@ -101,3 +117,44 @@ def test_draws_within_a_block_follow_errors_now():
     first = drawn < ERROR_BLOCK
     assert first.mean() == pytest.approx(0.5, abs=0.02)
     assert np.all(drawn[first] == 5)
+
+
+def test_a_pixels_rays_fill_its_strata_and_its_value_is_their_mean():
+    """Four rays per pixel: ray k of each drawn pixel in the k-th quarter of the lanes, through
+    a random point of the k-th cell of the pixel's 2 x 2 grid, and the pixel's value the mean of
+    its rays'; a batch of n rays shares them among n / 4 pixels."""
+    masks = np.zeros((2, 12, 16), bool)
+    masks[:, 2:10, 3:13] = True
+    ds = _dataset(np.zeros(masks.shape + (3,), np.uint8), masks)
+    sampler = PixelSampler(ds, seed=5, config=PixelSamplerConfig(rays_per_pixel=4))
+    n = 4096
+    u, v = _points_in_pixels(sampler, ds, n)
+    assert len(u) == n and len(np.asarray(sampler.drawn)) == n // 4
+    assert np.all((u > -1e-4) & (u < 1 + 1e-4) & (v > -1e-4) & (v < 1 + 1e-4))
+    k = np.repeat(np.arange(4), n // 4)
+    assert np.all(np.floor(np.clip(u, 0, 0.9999) * 2) == k % 2)
+    assert np.all(np.floor(np.clip(v, 0, 0.9999) * 2) == k // 2)
+    # Within its cell a ray goes anywhere: the cells' points spread over them.
+    assert np.std(u * 2 - k % 2) == pytest.approx(np.sqrt(1 / 12), rel=0.1)
+    values = np.random.default_rng(0).random((3, n)).astype(np.float32)
+    mean = np.asarray(sampler.pixel_mean(mi.Color3f(values)))
+    assert np.allclose(mean, values.reshape(3, 4, n // 4).mean(axis=1), atol=1e-6)
+
+
+def test_blur_spreads_the_rays_as_the_camera_does():
+    """With a blur of 0.7 pixels a ray's point is the pixel's uniform one plus a normal one:
+    its variance 1/12 + 0.49 along each axis, and as many on either side of the pixel."""
+    masks = np.zeros((1, 30, 30), bool)
+    masks[:, 10:20, 10:20] = True
+    ds = _dataset(np.zeros(masks.shape + (3,), np.uint8), masks)
+    sampler = PixelSampler(ds, seed=6, config=PixelSamplerConfig(blur=0.7))
+    u, v = _points_in_pixels(sampler, ds, 1 << 16)
+    for t in (u, v):
+        assert np.var(t) == pytest.approx(1 / 12 + 0.49, rel=0.03)
+        assert np.mean(t) == pytest.approx(0.5, abs=0.01)
+        assert np.mean(t < 0) == pytest.approx(np.mean(t > 1), abs=0.01)
+
+
+def test_rays_per_pixel_is_a_square():
+    with pytest.raises(ReneusError, match='rays_per_pixel=3: expected a square'):
+        PixelSamplerConfig(rays_per_pixel=3)
