@@ -10,7 +10,7 @@ import mitsuba as mi
 from reneus_mi.config import ModelConfig, RefineConfig
 from reneus_mi.fields import Field
 from reneus_mi.geometry.container import interpolated_normal
-from reneus_mi.render.frame import FieldFrame
+from reneus_mi.geometry.frame import FieldFrame
 from reneus_mi.render.optics import interface
 from reneus_mi.render.properties import read_properties
 from reneus_mi.render.seeds import opaque_seed, salted_seed

@@ -25,7 +25,7 @@ import trimesh
 
 from reneus_mi.fields.base import Field
 from reneus_mi.geometry.container import inside, load_container
-from reneus_mi.render.frame import FieldFrame
+from reneus_mi.geometry.frame import FieldFrame
 from reneus_mi.utils import limits
 from reneus_mi.utils.errors import NoSurfaceError, ReneusError
 

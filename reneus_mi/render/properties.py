@@ -18,7 +18,7 @@ import mitsuba as mi
 from reneus_mi.config import ModelConfig, RenderConfig, field_config_class, typed_value
 from reneus_mi.fields import FIELD_CONFIGS, Field, load_field
 from reneus_mi.presets import preset
-from reneus_mi.render.frame import FieldFrame
+from reneus_mi.geometry.frame import FieldFrame
 from reneus_mi.render.ray_samplers import SamplerConfig
 from reneus_mi.utils.errors import ReneusError
 

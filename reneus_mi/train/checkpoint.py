@@ -15,7 +15,7 @@ import zipfile
 import numpy as np
 
 from reneus_mi.fields import Field
-from reneus_mi.render.frame import FieldFrame
+from reneus_mi.geometry.frame import FieldFrame
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_savez
 

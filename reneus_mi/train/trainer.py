@@ -34,7 +34,7 @@ from reneus_mi.data.images import write_image
 from reneus_mi.fields import load_field
 from reneus_mi.geometry.mesh import gltf_from_world, write_glb, write_mesh
 from reneus_mi.geometry.surface import components, field_colors, field_mesh, surface_box
-from reneus_mi.render.frame import FieldFrame
+from reneus_mi.geometry.frame import FieldFrame
 from reneus_mi.render.loading import reneus_integrator
 from reneus_mi.render.seeds import JITTER, step_seed
 from reneus_mi.render.step_state import StepState

@@ -10,7 +10,7 @@ from reneus_mi.train import checkpoint
 def write_checkpoint(path, field, center, scale, half=0.6):
     """A checkpoint of ``field`` whose container box is ``center`` ± ``scale * half``."""
     import mitsuba as mi
-    from reneus_mi.render.frame import FieldFrame
+    from reneus_mi.geometry.frame import FieldFrame
     c = np.asarray(center, float)
     opt = mi.ad.Adam(lr=1e-3, params=field.params())
     frame = FieldFrame(center=tuple(c), scale=scale, bounds=(tuple(c - scale * half), tuple(c + scale * half)))

@@ -7,7 +7,7 @@ import reneus_mi  # noqa: F401  (sets the variant)
 from reneus_mi.fields.analytic import SphereField, TorusField
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.surface import extract_mesh, postprocess, sdf_grid
-from reneus_mi.render.frame import FieldFrame
+from reneus_mi.geometry.frame import FieldFrame
 
 
 def sphere(radius, center, subdivisions):
