@@ -72,7 +72,8 @@ def container_mesh(kind: str, half, grow: float = 0.0, edge: float | None = None
 
     ``box`` is that box (flat faces); ``rounded`` the box with edges and corners
     rounded; ``cylinder`` the vertical (z) jar through the box's corners, its rims
-    rounded (:func:`_jar`). The smooth ones carry exact vertex normals (``vertex_normals``), which the renderers use as shading normals. ``grow`` moves the surface
+    rounded (:func:`_jar`). The smooth ones carry exact vertex normals
+    (``vertex_normals``), which the renderers use as shading normals. ``grow`` moves the surface
     that far out everywhere (a box's faces, a smooth one's offset surface): the outside of
     a wall that thick around the container of ``grow`` 0. ``edge``: the radius of the rounded
     edges or rims (0: sharp; None: ROUNDING x the smallest half-extent).
@@ -118,8 +119,9 @@ SHARP_RIM = 1e-4
 
 def _jar(radius: float, half_height: float, rim: float) -> trimesh.Trimesh:
     """The vertical (z) cylinder ``radius`` x ``2 half_height`` about the origin, its rims
-    rounded by ``rim`` (at least :data:`SHARP_RIM` of the radius): the profile (bottom centre, bottom rim,
-    side, top rim, top centre) turned about z, each vertex with the profile's normal there."""
+    rounded by ``rim`` (at least :data:`SHARP_RIM` of the radius): the profile (bottom
+    centre, bottom rim, side, top rim, top centre) turned about z, each vertex with the
+    profile's normal there."""
     rim = max(rim, SHARP_RIM * radius)
     t = np.linspace(0.0, 0.5 * np.pi, RIM_POINTS)
     bottom = np.stack([radius - rim + rim * np.sin(t), -half_height + rim - rim * np.cos(t),

@@ -23,6 +23,10 @@ error of a pixel drawn in its tile: a run of 12-megapixel photographs draws each
 tenth of a time, and one that had to wait for its own draw would spend its batches on the
 unseen body as much as on the legs. The errors and the blocks' prefix sum are the
 sampler's state (saved in the checkpoint: a resumed run draws what the unbroken one drew).
+
+Two more are options, measured but not defaults: several rays per drawn pixel, one per
+stratum, whose mean is compared with the photograph's pixel (``rays_per_pixel``), and the
+camera's blur beyond the pixel's area (``blur``).
 """
 from __future__ import annotations
 
