@@ -138,7 +138,8 @@ class PixelSampler:
         side = round(per ** 0.5)
         lane = dr.arange(mi.UInt32, n * per)
         k = lane // n
-        draws = rng if per == 1 else mi.PCG32(n * per, initstate=opaque_seed(step_seed(self.seed, step, STRATA)))
+        draws = rng if per == 1 else mi.PCG32(n * per,
+                                               initstate=opaque_seed(step_seed(self.seed, step, STRATA)))
         u, v = (draws.next_float32(), draws.next_float32()) if cfg.jitter else (0.5, 0.5)
         x, y = (mi.Float(k % side) + u) / side, (mi.Float(k // side) + v) / side
         if cfg.blur > 0.0:
