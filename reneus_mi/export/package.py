@@ -104,11 +104,13 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
     config = folder.read_config()
     units = result.get('units')
     created = datetime.datetime.fromtimestamp(os.path.getmtime(folder.result), datetime.timezone.utc)
+    dataset = _dataset(config.get('data'))
     metadata = {
         'dwc': identifiers,
         'ac': {'dcterms:format': 'model/gltf-binary' if 'web_mesh' in files else 'application/ply',
                'ac:subtypeLiteral': '3D model', 'ac:resourceCreationTechnique': CREATION_TECHNIQUE,
-               'dc:creator': creator, 'xmp:CreateDate': created.isoformat(timespec='seconds')},
+               'dc:creator': creator, 'xmp:CreateDate': created.isoformat(timespec='seconds'),
+               **_terms_3d(mesh, units, dataset)},
         'files': files,
         'mesh': {'units': units or 'the dataset\'s (it states none)', 'frame': result.get('frame'),
                  'extent': np.asarray(mesh.extents).round(4).tolist() if len(mesh.faces) else None,
@@ -131,7 +133,7 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
     atomic_write_text(os.path.join(out, 'record.csv'), _record(metadata, name))
     write_page(os.path.join(out, f'{name}.html'), metadata, os.path.join(out, f'{name}.ply'),
                os.path.join(out, files.get('access_mesh', files.get('web_mesh'))) if 'web_mesh' in files else None,
-               _dataset(config.get('data')))
+               dataset)
     atomic_write_text(os.path.join(out, FIXITY), _fixity(out))
     return metadata
 
@@ -175,6 +177,18 @@ def _cell(value):
     if isinstance(value, str) and value.startswith(FORMULA_START):
         return "'" + value
     return value
+
+
+def _terms_3d(mesh: trimesh.Trimesh, units: str | None, dataset) -> dict:
+    """The master mesh in the 3D terms that Audiovisual Core's 3D Task Group proposes
+    (tdwg/ac#243, staged for rs.tdwg.org as ac_3d_terms.csv and bf_3d_terms.csv, 2025-12-23; not
+    yet ratified): its resource type, points and faces, whether its vertices carry colours
+    ("True" / "False", as the term defines its values), the photographs it was made from
+    (None where the dataset is gone) and the unit of its coordinates (None where the run states
+    none)."""
+    return {'ac:3DResourceType': 'polygonal mesh', 'ac:pointCount': len(mesh.vertices),
+            'ac:faceCount': len(mesh.faces), 'ac:colorBoolean': str(mesh.visual.kind == 'vertex'),
+            'ac:numberOfImages': len(dataset.names) if dataset is not None else None, 'bf:Unit': units}
 
 
 def _dataset(data: str | None):

@@ -16,6 +16,7 @@ import trimesh
 from PIL import Image
 
 from reneus_mi import optimize
+from reneus_mi.data import load_dataset
 from reneus_mi.export import __main__ as export_command, package as export
 from reneus_mi.utils.errors import ReneusError
 
@@ -53,6 +54,13 @@ def test_package_of_a_run(finished, tmp_path):
         assert json.load(f) == json.loads(json.dumps(metadata, default=float))
     assert metadata['dwc'] == IDS and metadata['ac']['dc:creator'] == 'A. Curator'
     assert metadata['ac']['dcterms:format'] == 'model/gltf-binary'
+    # Audiovisual Core's proposed 3D terms (tdwg/ac#243) beside the keys above.
+    with open(finished / 'config.json') as f:
+        views = len(load_dataset(json.load(f)['data']).names)
+    assert {k: v for k, v in metadata['ac'].items() if k.startswith(('ac:3D', 'ac:p', 'ac:f', 'ac:c', 'ac:n', 'bf:'))} \
+        == {'ac:3DResourceType': 'polygonal mesh', 'ac:pointCount': len(theirs.vertices),
+            'ac:faceCount': len(theirs.faces), 'ac:colorBoolean': 'True', 'ac:numberOfImages': views,
+            'bf:Unit': metadata['mesh']['units']}
     np.testing.assert_allclose(metadata['mesh']['extent'], theirs.extents, atol=1e-4)
     # Length, width, height: at least the extent along the longest axis, sorted.
     size = metadata['mesh']['size']
