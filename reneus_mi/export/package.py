@@ -180,9 +180,9 @@ def _cell(value):
 
 
 def _terms_3d(mesh: trimesh.Trimesh, units: str | None, dataset) -> dict:
-    """The master mesh in the 3D terms that Audiovisual Core's 3D Task Group proposes
-    (tdwg/ac#243, staged for rs.tdwg.org as ac_3d_terms.csv and bf_3d_terms.csv, 2025-12-23; not
-    yet ratified): its resource type, points and faces, whether its vertices carry colours
+    """The master mesh (``NAME.ply``) in the 3D terms that Audiovisual Core's 3D Task Group
+    proposes (tdwg/ac#243, staged for rs.tdwg.org as ac_3d_terms.csv and bf_3d_terms.csv,
+    2025-12-23; not yet ratified): its resource type, points and faces, whether its vertices carry colours
     ("True" / "False", as the term defines its values), the photographs it was made from
     (None where the dataset is gone) and the unit of its coordinates (None where the run states
     none)."""

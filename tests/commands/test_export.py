@@ -55,12 +55,17 @@ def test_package_of_a_run(finished, tmp_path):
     assert metadata['dwc'] == IDS and metadata['ac']['dc:creator'] == 'A. Curator'
     assert metadata['ac']['dcterms:format'] == 'model/gltf-binary'
     # Audiovisual Core's proposed 3D terms (tdwg/ac#243) beside the keys above.
+    # They describe the master mesh (NAME.ply: no colours; the GLB carries the field's).
     with open(finished / 'config.json') as f:
         views = len(load_dataset(json.load(f)['data']).names)
-    assert {k: v for k, v in metadata['ac'].items() if k.startswith(('ac:3D', 'ac:p', 'ac:f', 'ac:c', 'ac:n', 'bf:'))} \
-        == {'ac:3DResourceType': 'polygonal mesh', 'ac:pointCount': len(theirs.vertices),
-            'ac:faceCount': len(theirs.faces), 'ac:colorBoolean': 'True', 'ac:numberOfImages': views,
-            'bf:Unit': metadata['mesh']['units']}
+    with open(finished / 'result.json') as f:
+        units = json.load(f).get('units')
+    terms = ('ac:3DResourceType', 'ac:pointCount', 'ac:faceCount', 'ac:colorBoolean', 'ac:numberOfImages',
+             'bf:Unit')
+    assert {k: metadata['ac'][k] for k in terms} == {
+        'ac:3DResourceType': 'polygonal mesh', 'ac:pointCount': len(theirs.vertices),
+        'ac:faceCount': len(theirs.faces), 'ac:colorBoolean': 'False', 'ac:numberOfImages': views,
+        'bf:Unit': units}
     np.testing.assert_allclose(metadata['mesh']['extent'], theirs.extents, atol=1e-4)
     # Length, width, height: at least the extent along the longest axis, sorted.
     size = metadata['mesh']['size']
