@@ -28,6 +28,9 @@ LAYERS = [
     ('optimize', 'scene', 'extract', 'evaluate', 'synth', 'simulate', 'board', 'colmap'),
 ]
 
+#: Each layer's height in LAYERS.
+RANK = {name: i for i, row in enumerate(LAYERS) for name in row}
+
 #: Upward imports still in the house, each with what removes it (#42). The test fails on any
 #: other, and on an entry here that no longer happens: the list only shrinks.
 KNOWN = {
@@ -68,27 +71,25 @@ def _imported(module: str) -> str | None:
 
 def imports() -> set[tuple[str, str, str]]:
     """(file, its layer, an imported layer) of every import in the project's modules."""
-    rank = {name: i for i, row in enumerate(LAYERS) for name in row}
     found = set()
     for path in sorted([*ROOT.glob('reneus_mi/**/*.py'), *ROOT.glob('plugins/*.py')]):
         if 'vendor' in path.parts:
             continue
         layer = _layer_of(path)
-        assert layer in rank, f'{path}: layer {layer!r} is in no row of LAYERS'
+        assert layer in RANK, f'{path}: layer {layer!r} is in no row of LAYERS'
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             names = ([node.module] if isinstance(node, ast.ImportFrom) and node.module and not node.level
                      else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
             for name in names:
                 target = _imported(name)
                 if target is not None and target != layer:
-                    assert target in rank, f'{path}: imports {name}, whose layer {target!r} is in no row'
+                    assert target in RANK, f'{path}: imports {name}, whose layer {target!r} is in no row'
                     found.add((str(path.relative_to(ROOT)), layer, target))
     return found
 
 
 def test_no_module_imports_a_layer_above_its_own():
-    rank = {name: i for i, row in enumerate(LAYERS) for name in row}
-    upward = {(f, target) for f, layer, target in imports() if rank[target] > rank[layer]}
+    upward = {(f, target) for f, layer, target in imports() if RANK[target] > RANK[layer]}
     new = sorted(upward - KNOWN.keys())
     gone = sorted(KNOWN.keys() - upward)
     assert not new, ('imports of a layer above their own (docs/architecture.md): '
