@@ -3,8 +3,8 @@
 #
 #   bash setup.sh [options]       install, then reconstruct the embedded demo (options go to
 #                                 python -m reneus_mi.optimize, e.g. --iterations 100)
-#   bash setup.sh test [options]  install (and Chromium, for the report page's test), then run
-#                                 the test suite (options go to pytest)
+#   bash setup.sh test [options]  install (and Chromium and the glTF Validator, for the package's
+#                                 tests), then run the test suite (options go to pytest)
 #
 # Dr.Jit's CPU backend needs libLLVM >= 16 (Debian 12 ships 14/15, with which
 # every kernel aborts with "LLVM ERROR: Cannot select ... fminimum").
@@ -31,6 +31,17 @@ if [ "$mode" = test ]; then
     echo "installing chromium (the report page's browser test)"
     $sudo apt-get update -qq
     $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+  fi
+  # The package's GLB files are checked by Khronos' glTF Validator (its npm build).
+  if ! command -v npm >/dev/null 2>&1; then
+    sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo"
+    echo "installing node (the glTF Validator's runtime)"
+    $sudo apt-get update -qq
+    $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nodejs npm >/dev/null
+  fi
+  if [ ! -d .cache/gltf-validator/node_modules/gltf-validator ]; then
+    echo "installing the glTF Validator into .cache/gltf-validator"
+    npm install --silent --no-audit --no-fund --prefix .cache/gltf-validator gltf-validator@2.0.0-dev.3.10 >/dev/null
   fi
   exec python3 -m pytest -q "$@"
 fi

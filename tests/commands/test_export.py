@@ -50,6 +50,7 @@ def test_package_of_a_run(finished, tmp_path):
     assert np.array_equal(mine.visual.vertex_colors, theirs.visual.vertex_colors)
     web = trimesh.load(out / f'{name}.glb', force='mesh', process=False)
     assert len(web.vertices) == len(theirs.vertices)
+    assert _gltf_problems(out / f'{name}.glb') == []
     with open(out / 'metadata.json') as f:
         assert json.load(f) == json.loads(json.dumps(metadata, default=float))
     assert metadata['dwc'] == IDS and metadata['ac']['dc:creator'] == 'A. Curator'
@@ -82,6 +83,22 @@ def test_package_of_a_run(finished, tmp_path):
     assert float(row['extent_x']) == pytest.approx(theirs.extents[0], abs=1e-3)
 
 
+#: Khronos' glTF Validator, as ``bash setup.sh test`` installs it (npm's build of it).
+GLTF_VALIDATOR = os.path.join(os.path.dirname(__file__), '..', '..', '.cache', 'gltf-validator', 'node_modules',
+                              'gltf-validator')
+
+
+def _gltf_problems(path) -> list[str]:
+    """The errors and warnings the glTF Validator finds in a GLB (its hints and notes aside)."""
+    assert os.path.isdir(GLTF_VALIDATOR), 'no glTF Validator: bash setup.sh test installs it (npm)'
+    script = ("const v = require(process.argv[1]);"
+              "v.validateBytes(new Uint8Array(require('fs').readFileSync(process.argv[2])))"
+              ".then(r => console.log(JSON.stringify(r.issues.messages)))")
+    done = subprocess.run(['node', '-e', script, os.path.abspath(GLTF_VALIDATOR), str(path)], capture_output=True,
+                          text=True, timeout=120, check=True)
+    return [f"{m['code']} at {m.get('pointer')}" for m in json.loads(done.stdout) if m['severity'] <= 1]
+
+
 def test_large_model_gets_an_access_copy_under_the_limit(finished, tmp_path, monkeypatch):
     """A GLB over the limit (here a fifth of this one's size) gets a simplified copy under it:
     the same shape (its box to a percent), coloured, named in the metadata and the fixity."""
@@ -99,6 +116,7 @@ def test_large_model_gets_an_access_copy_under_the_limit(finished, tmp_path, mon
     colours = np.asarray(small.visual.vertex_colors)[:, :3].astype(float)
     assert np.abs(colours - np.asarray(full.visual.vertex_colors)[near, :3]).mean() < 8
     assert name in (out / 'manifest-sha256.txt').read_text()
+    assert _gltf_problems(out / name) == []
 
 
 def test_watertight_variant_says_what_it_closed(tmp_path):
