@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from reneus_mi.fields import FIELD_CONFIGS, FieldConfig, NeuSFieldConfig
 from reneus_mi.geometry.container import CREASE_ANGLE
 from reneus_mi.geometry.surface import POSTPROCESS_MODES
+from reneus_mi.paper import GAMMA
 from reneus_mi.render.ray_samplers import SamplerConfig
 from reneus_mi.render.surroundings import LIGHTS
 from reneus_mi.train.pixel_sampler import PixelSamplerConfig
@@ -36,12 +37,6 @@ from reneus_mi.utils.validate import check_choice, check_numbers
 
 MODES = ('reneus', 'neus', 'neus_plus')
 TERMINALS = ('trace', 'ambient', 'black')
-#: The paper's camera response: a photograph holds C^(1/GAMMA) of the linear radiance C.
-GAMMA = 2.2
-#: The paper's glass: the IOR of a container whose data state none (and of synthetic data).
-IOR = 1.45
-#: The paper's ambient radiance C_out (linear, every channel).
-AMBIENT = 0.8
 
 
 @dataclass

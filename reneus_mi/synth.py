@@ -9,10 +9,10 @@ import argparse
 import os
 import sys
 
-from reneus_mi.config import AMBIENT, IOR
 from reneus_mi.data.objects import OBJECTS
 from reneus_mi.data.synth import (DEFAULT_MAX_DEPTH, DEFAULT_SPP, LIQUID_IOR, SUBSETS, SYNTH_CONTAINERS, WALL,
                                   make_dataset)
+from reneus_mi.paper import AMBIENT, IOR
 from reneus_mi.utils import interrupt
 from reneus_mi.utils.errors import exit_on_error
 

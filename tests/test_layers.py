@@ -12,7 +12,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 #: Bottom to top; names on one row are one layer (they may import each other's layers below).
 LAYERS = [
-    ('utils', 'reneus_mi'),         # the package's __init__: its version and variant, nothing above
+    ('utils', 'reneus_mi', 'paper'),  # the package's __init__ (version, variant); the paper's values
     ('fields',),
     ('geometry',),
     ('data',),
@@ -39,9 +39,7 @@ KNOWN = {
     ('reneus_mi/train/runs.py', 'presets'): 'the same: a run built from a preset above train',
     ('reneus_mi/render/properties.py', 'config'): 'the XML properties to configs: above config',
     ('reneus_mi/render/properties.py', 'presets'): 'the same',
-    ('reneus_mi/data/scene_xml.py', 'config'): "the paper's constants and RenderConfig to a leaf",
-    ('reneus_mi/data/synth.py', 'config'): "the paper's constants (GAMMA, IOR, AMBIENT) to a leaf",
-    ('reneus_mi/data/checks.py', 'config'): 'the same (GAMMA)',
+    ('reneus_mi/data/scene_xml.py', 'config'): 'RenderConfig beside the renderer, below data',
     ('reneus_mi/data/scene_xml.py', 'render'): 'absorbing_medium with the scene writer, below render',
     ('reneus_mi/data/synth.py', 'render'): 'the same',
     ('reneus_mi/utils/cli.py', 'config'): "text_value's field kinds: the CLI generator above config",

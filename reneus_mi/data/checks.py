@@ -27,11 +27,11 @@ import warnings
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.config import GAMMA
 from reneus_mi.data.cameras import pixel_rays
 from reneus_mi.data.images import as_float
 from reneus_mi.geometry.container import inside
 from reneus_mi.geometry.mesh import mitsuba_mesh
+from reneus_mi.paper import GAMMA
 from reneus_mi.utils.errors import ReneusError
 
 #: The container centre may project this far (fraction of the image size) outside the image.

@@ -29,11 +29,12 @@ import xml.etree.ElementTree as ET
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.config import AMBIENT, IOR, RenderConfig
+from reneus_mi.config import RenderConfig
 from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
 from reneus_mi.data.dataset import CONTACT_GAP, Dataset
 from reneus_mi.data.images import write_image
 from reneus_mi.geometry.container import load_container, mesh_type, mitsuba_reads
+from reneus_mi.paper import AMBIENT, IOR
 from reneus_mi.render.interfaces import absorbing_medium
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError

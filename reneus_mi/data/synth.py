@@ -35,7 +35,6 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
-from reneus_mi.config import AMBIENT, GAMMA, IOR
 from reneus_mi.data import Dataset, load_dataset, write_dataset
 from reneus_mi.data.dataset import Interface
 from reneus_mi.data.cameras import focal_from_fov, intrinsics, look_at
@@ -46,6 +45,7 @@ from reneus_mi.data.scene_xml import sensor_dict, write_scene
 from reneus_mi.geometry.container import container_shape, shading_mesh
 from reneus_mi.geometry.mesh import mitsuba_mesh
 from reneus_mi.geometry.shapes import CONTAINERS, write_container
+from reneus_mi.paper import AMBIENT, GAMMA, IOR
 from reneus_mi.render.interfaces import absorbing_medium
 from reneus_mi.utils import guards, limits
 from reneus_mi.utils.errors import ReneusError
