@@ -39,6 +39,8 @@ import sys
 import tempfile
 import time
 
+import numpy as np
+
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..'))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -168,10 +170,27 @@ def child(args) -> None:
     warm_s = time.perf_counter() - start
     dr.sync_thread()
     wall, samples, rays = 0.0, 0.0, 0
+    # The Python thread's CPU time (tracing, code generation, host work; while it waits it may
+    # run a kernel's blocks) against all threads' (the kernels' too).
+    thread_cpu, process_cpu = time.thread_time(), time.process_time()
     for _ in range(args.steps):
         stats = trainer.step()
         wall, samples, rays = wall + stats.seconds, samples + stats.samples, rays + stats.rays
+    thread_cpu, process_cpu = time.thread_time() - thread_cpu, time.process_time() - process_cpu
     step_s = wall / args.steps
+
+    # The step against its batch: what does not grow with the rays is the step's fixed cost.
+    batch, sweep = trainer.batch, []
+    for size in args.batches:
+        trainer.batch = size
+        for _ in range(5):
+            trainer.step()
+        seconds = [trainer.step().seconds for _ in range(args.steps)]
+        sweep.append({'batch': size, 'step_ms': 1e3 * float(np.median(seconds))})
+    trainer.batch = batch
+    for _ in range(5):
+        trainer.step()
+    slope, fixed = np.polyfit([r['batch'] for r in sweep], [r['step_ms'] for r in sweep], 1)
 
     # The same steps again, each phase's kernels recorded.
     phases = collections.defaultdict(lambda: {'wall': 0.0, 'kernels': []})
@@ -225,8 +244,9 @@ def child(args) -> None:
     heavy = sorted(kernels.items(), key=lambda kv: -kv[1]['exec_ms'])[:TOP]
     print(json.dumps({
         'scene': args.one, 'batch': rays / n, 'samples_per_ray': samples / rays, 'step_ms': 1e3 * step_s,
-        'recorded_step_ms': 1e3 * recorded_s, 'rays_per_s': rays / wall, 'samples_per_s': samples / wall,
-        'warm_s': warm_s, 'phases': rows,
+        'recorded_step_ms': 1e3 * recorded_s, 'thread_cpu_ms': 1e3 * thread_cpu / args.steps,
+        'process_cpu_ms': 1e3 * process_cpu / args.steps, 'rays_per_s': rays / wall, 'samples_per_s': samples / wall,
+        'warm_s': warm_s, 'phases': rows, 'sweep': sweep, 'fixed_ms': fixed, 'ms_per_1k_rays': 1e3 * slope,
         'kernels_exec_ms': sum(k['exec_ms'] for k in kernels.values()) / n,
         'kernels': [{'hash': h, 'phase': k['phase'], 'launches': k['launches'] / n, 'size': k['size'],
                      'exec_ms': k['exec_ms'] / n, 'ops': k['ops'], **k['counts']} for h, k in heavy]}))
@@ -270,7 +290,17 @@ def write_doc(results: list[dict], peak: dict, cold: dict, args, command: str, d
             continue
         lines += [f'## {name}', '', f'`{r["scene"]}`: {r["batch"]:.0f} rays a step, {r["samples_per_ray"]:.1f} '
                   f'field samples a ray; a step {r["step_ms"]:.0f} ms ({r["rays_per_s"]:.0f} rays/s, '
-                  f'{r["samples_per_s"] / 1e3:.0f} k samples/s); recorded {r["recorded_step_ms"]:.0f} ms.', '',
+                  f'{r["samples_per_s"] / 1e3:.0f} k samples/s), {r["process_cpu_ms"]:.0f} ms of CPU time in all threads, '
+                  f'{r["thread_cpu_ms"]:.0f} ms of them in the Python thread.', '',
+                  '| rays a step | ' + ' | '.join(str(b['batch']) for b in r['sweep']) + ' |',
+                  '| --- ' * (1 + len(r['sweep'])) + '|',
+                  '| step (ms, median) | ' + ' | '.join(f"{b['step_ms']:.0f}" for b in r['sweep']) + ' |', '',
+                  f'A line through them: a step costs {r["fixed_ms"]:.0f} ms whatever its batch (tracing, code '
+                  f'generation, launches, host work) and {r["ms_per_1k_rays"]:.0f} ms per 1,024 rays; at '
+                  f'{r["batch"]:.0f} rays the fixed part is '
+                  f'{r["fixed_ms"] / (r["fixed_ms"] + r["ms_per_1k_rays"] * r["batch"] / 1024):.0%} of the step.', '',
+                  f'Recorded with the kernel history (which waits for every launch, so that the host\'s share '
+                  f'is overstated where launches are many), a step took {r["recorded_step_ms"]:.0f} ms:', '',
                   '| phase | wall (ms) | launches | JIT kernels | kernel execution (ms) | code generation (ms) |',
                   '| --- ' * 6 + '|']
         for p in r['phases']:
@@ -310,6 +340,8 @@ def main(argv=None) -> int:
     p.add_argument('--warm', type=int, default=150, help='steps before the measured ones')
     p.add_argument('--steps', type=int, default=20, help='steps measured, and as many recorded')
     p.add_argument('--batch', type=int, default=0, help='rays a step (0: as the scene states)')
+    p.add_argument('--batches', type=int, nargs='+', default=[256, 1024, 4096],
+                   help='batches of the sweep that separates the fixed cost of a step')
     p.add_argument('--cold', action='store_true', help='also time a fresh process\'s first step, cache empty and warm')
     p.add_argument('--out', default=os.path.join('runs', 'speed'), help='where the default scene is rendered')
     p.add_argument('--doc', default=os.path.join(ROOT, 'docs'))
@@ -343,7 +375,7 @@ def main(argv=None) -> int:
     results, cold = [], {}
     for name, xml in scenes.items():
         cmd = [sys.executable, os.path.abspath(__file__), '--one', os.path.abspath(xml), '--warm', str(args.warm),
-               '--steps', str(args.steps), '--batch', str(args.batch)]
+               '--steps', str(args.steps), '--batch', str(args.batch), '--batches', *map(str, args.batches)]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode:
             result = {'error': (done.stderr.strip().splitlines() or ['exit %d' % done.returncode])[-1]}
