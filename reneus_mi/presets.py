@@ -37,8 +37,8 @@ _SMALL_NEUS = dict(layers=4, color_layers=2, multires=4, multires_view=2, init_r
 #: hash grid (docs/constants.md); a free sharpness outruns thin parts (docs/quality.md).
 _GRID_SAMPLER = SamplerConfig(n_coarse=24, n_fine=8, n_upsample_steps=2, occupancy_resolution=64)
 _GRID_TRAIN = dict(learning_rate=1e-3, warm_up=50, trans_weight=0.01, sharpness_start=64.0)
-#: Rays a step of `fast`: on this CPU a step costs some 60 ms whatever its batch (tracing, code
-#: generation, launches) and 50 ms per 1,024 rays on a capture, so 4,096 rays give 1.8x the
+#: Rays a step of `fast`: on a 2-core CPU a step of a capture costs some 63 ms whatever its batch
+#: (tracing, code generation, launches) and 45 ms per 1,024 rays, so 4,096 rays give 1.8x the
 #: rays a second of 1,024, and at 10 minutes the same meshes or better (docs/profile.md,
 #: docs/quality.md). The demo keeps 1,024: its 1,000 steps are its length.
 _FAST_BATCH = 4096
