@@ -44,7 +44,7 @@ import numpy as np
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..'))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-#: The phases of ``Trainer.step``, as the methods it calls (the rest is 'gradients').
+#: The phases of ``Trainer.step``, as the methods it calls (the rest is OTHER).
 PHASES = (('begin step', 'integrator', 'begin_step'), ('batch', 'pixels', 'batch'),
           ('forward trace', 'integrator', 'render_rays'), ('record', 'pixels', 'record'),
           ('losses', 'losses', 'loss_dict'), ('backward', 'dr', 'backward'), ('optimiser', 'opt', 'step'),
@@ -54,21 +54,25 @@ OTHER = 'gradients and loss'
 TOP = 6
 
 
+def best_time(make, repeats: int = 5) -> float:
+    """The shortest of ``repeats`` evaluations of what ``make()`` traces, in seconds (tracing aside)."""
+    import drjit as dr
+    best = float('inf')
+    for _ in range(repeats):
+        out = make()
+        dr.sync_thread()
+        start = time.perf_counter()
+        dr.eval(out)
+        dr.sync_thread()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
 def peaks() -> dict:
     """This machine's FMA rate, gather rates and atomic scatter-add rate, as Dr.Jit runs them."""
     import drjit as dr
     import mitsuba as mi
-
-    def timed(make, repeats=5):
-        best = float('inf')
-        for _ in range(repeats):
-            out = make()
-            dr.sync_thread()
-            start = time.perf_counter()
-            dr.eval(out)
-            dr.sync_thread()
-            best = min(best, time.perf_counter() - start)
-        return best
+    timed = best_time
 
     n, chains, depth = 1 << 22, 8, 64
 
@@ -96,33 +100,45 @@ def peaks() -> dict:
     return out
 
 
-def mlp_rates(dims=(17, 32, 32, 9), n=1 << 16) -> dict:
-    """FMAs a second of one ``drjit.nn`` MLP (the fast preset's SDF network's shape) alone:
-    forward, and forward with backward (counted as three times the forward's FMAs)."""
-    import drjit as dr
+#: The fast preset's SDF network's shape: inputs, hidden widths, outputs.
+MLP = (17, 32, 32, 9)
+
+
+def mlp(dims=MLP):
+    """A ``drjit.nn`` MLP of layer widths ``dims`` (ReLU between layers), packed for training."""
     import drjit.nn as nn
     import mitsuba as mi
     layers = []
     for a, b in zip(dims[:-1], dims[1:]):
         layers += [nn.Linear(a, b), nn.ReLU()]
-    net = nn.pack(nn.Sequential(*layers[:-1]).alloc(mi.TensorXf, dims[0]), layout='training')
+    return nn.pack(nn.Sequential(*layers[:-1]).alloc(mi.TensorXf, dims[0]), layout='training')
+
+
+def mlp_output(net, x: list, backward: bool):
+    """The MLP's outputs summed over ``x`` (one array per input), or with ``backward`` the weights'
+    gradient of that sum: what a kernel evaluates."""
+    import drjit as dr
+    import drjit.nn as nn
+    if backward:
+        dr.enable_grad(net['weights'])
+    y = list(net(nn.CoopVec(*x)))
+    out = sum(y[1:], y[0])
+    if not backward:
+        return out
+    dr.backward(out)
+    return dr.grad(net['weights'])
+
+
+def mlp_rates(dims=MLP, n=1 << 16) -> dict:
+    """FMAs a second of one MLP of the field's shape alone: forward, and forward with backward
+    (counted as three times the forward's FMAs)."""
+    import drjit as dr
+    import mitsuba as mi
+    net = mlp(dims)
     x = [dr.arange(mi.Float, n) * (1e-5 * (i + 1)) for i in range(dims[0])]
     fmas = n * sum(a * b for a, b in zip(dims[:-1], dims[1:]))
-
-    def once(backward: bool) -> float:
-        dr.enable_grad(net['weights'])
-        y = list(net(nn.CoopVec(*x)))
-        out = sum(y[1:], y[0])
-        if backward:
-            dr.backward(dr.sum(out))
-            out = dr.grad(net['weights'])
-        dr.sync_thread()
-        start = time.perf_counter()
-        dr.eval(out)
-        dr.sync_thread()
-        return time.perf_counter() - start
-    forward = min(once(False) for _ in range(4))
-    training = min(once(True) for _ in range(4))
+    forward = best_time(lambda: mlp_output(net, x, backward=False), repeats=4)
+    training = best_time(lambda: mlp_output(net, x, backward=True), repeats=4)
     return {'mlp_forward_fma_per_s': fmas / forward, 'mlp_training_fma_per_s': 3 * fmas / training}
 
 
@@ -138,7 +154,8 @@ def ir_counts(ir: str) -> dict:
         bounds[prefix].append(int(bound))
     loop_fma = reductions = 0
     for prefix, (outer, inner) in ((k, v) for k, v in bounds.items() if len(v) == 2):
-        block = re.search(rf'\n{prefix.replace("f", "l").replace("u", "l")}_body:\n(.*?)\n\n', body, re.S)
+        # The loop's blocks are named l<number> whatever its variables' prefix.
+        block = re.search(rf'\nl{prefix[1:]}_body:\n(.*?)\n\n', body, re.S)
         if block and 'vector.reduce.fadd' in block.group(1):
             reductions += outer * inner
         else:
@@ -152,22 +169,27 @@ def ir_counts(ir: str) -> dict:
 
 def child(args) -> None:
     """One scene: print one JSON line with the step's figures and the kernels."""
-    import drjit as dr
-
     import reneus_mi  # noqa: F401
     from reneus_mi.config import replace
-    from reneus_mi.train import runs, trainer as trainer_module
+    from reneus_mi.train import runs
 
     spec = runs.spec_of_scene(args.one)
     changes = {'train.iterations': 10 ** 7, 'train.validate_every': 0, 'train.checkpoint_every': 0}
     if args.batch:
         changes.update({'train.batch_rays': args.batch, 'train.sample_budget': 0})
     spec.config = replace(spec.config, **changes)
-    trainer = runs.open_spec(spec, tempfile.mkdtemp(prefix='profile_')).trainer()
-    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix='profile_') as folder:
+        print(json.dumps(measure(args, runs.open_spec(spec, folder).trainer())))
+
+
+def measure(args, trainer) -> dict:
+    """The step's figures and the kernels of ``trainer``'s run (see the module's docstring)."""
+    import drjit as dr
+
+    from reneus_mi.train import trainer as trainer_module
+
     for _ in range(args.warm):
         trainer.step()
-    warm_s = time.perf_counter() - start
     dr.sync_thread()
     wall, samples, rays = 0.0, 0.0, 0
     # The Python thread's CPU time (tracing, code generation, host work; while it waits it may
@@ -242,27 +264,25 @@ def child(args) -> None:
                 entry['counts'] = ir_counts(k['ir'].getvalue())
                 entry['ops'] = k['operation_count']
     heavy = sorted(kernels.items(), key=lambda kv: -kv[1]['exec_ms'])[:TOP]
-    print(json.dumps({
+    return {
         'scene': args.one, 'batch': rays / n, 'samples_per_ray': samples / rays, 'step_ms': 1e3 * step_s,
         'recorded_step_ms': 1e3 * recorded_s, 'thread_cpu_ms': 1e3 * thread_cpu / args.steps,
         'process_cpu_ms': 1e3 * process_cpu / args.steps, 'rays_per_s': rays / wall, 'samples_per_s': samples / wall,
-        'warm_s': warm_s, 'phases': rows, 'sweep': sweep, 'fixed_ms': fixed, 'ms_per_1k_rays': 1e3 * slope,
-        'kernels_exec_ms': sum(k['exec_ms'] for k in kernels.values()) / n,
+        'phases': rows, 'sweep': sweep, 'fixed_ms': fixed, 'ms_per_1k_rays': 1e3 * slope,
         'kernels': [{'hash': h, 'phase': k['phase'], 'launches': k['launches'] / n, 'size': k['size'],
-                     'exec_ms': k['exec_ms'] / n, 'ops': k['ops'], **k['counts']} for h, k in heavy]}))
+                     'exec_ms': k['exec_ms'] / n, 'ops': k['ops'], **k['counts']} for h, k in heavy]}
 
 
 def first_step(scene: str, cold: bool) -> float:
-    """A fresh process's first training step (tracing, compilation, one step), in seconds."""
-    env = dict(os.environ)
-    home = tempfile.mkdtemp(prefix='drjit_home_') if cold else None
-    if home:
-        env['HOME'] = home
-    code = ('import reneus_mi, time; from reneus_mi.train import runs; import tempfile\n'
-            f'spec = runs.spec_of_scene({scene!r})\n'
-            'tr = runs.open_spec(spec, tempfile.mkdtemp()).trainer()\n'
-            'print(tr.step().seconds)')
-    done = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True, check=True)
+    """A fresh process's first training step (tracing, compilation, one step), in seconds; ``cold``:
+    with an empty kernel cache (Dr.Jit keeps it under ``HOME``)."""
+    code = ('import reneus_mi, sys, tempfile; from reneus_mi.train import runs\n'
+            'with tempfile.TemporaryDirectory() as out:\n'
+            '    print(runs.open_spec(runs.spec_of_scene(sys.argv[1]), out).trainer().step().seconds)')
+    with tempfile.TemporaryDirectory(prefix='drjit_home_') as home:
+        env = dict(os.environ, HOME=home) if cold else None
+        done = subprocess.run([sys.executable, '-c', code, scene], env=env, capture_output=True, text=True,
+                              check=True)
     return float(done.stdout.split()[-1])
 
 

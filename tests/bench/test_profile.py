@@ -4,7 +4,6 @@ import importlib.util
 import os
 
 import drjit as dr
-import drjit.nn as nn
 import mitsuba as mi
 import pytest
 
@@ -16,26 +15,16 @@ _spec = importlib.util.spec_from_file_location(
 bench_profile = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bench_profile)
 
-DIMS = (17, 32, 32, 9)
+DIMS = bench_profile.MLP
 WEIGHTS = sum(a * b for a, b in zip(DIMS[:-1], DIMS[1:]))
 
 
 def _kernels(backward: bool) -> list[dict]:
-    layers = []
-    for a, b in zip(DIMS[:-1], DIMS[1:]):
-        layers += [nn.Linear(a, b), nn.ReLU()]
-    net = nn.pack(nn.Sequential(*layers[:-1]).alloc(mi.TensorXf, DIMS[0]), layout='training')
+    net = bench_profile.mlp(DIMS)
     x = [dr.arange(mi.Float, 64) * (i + 1) for i in range(DIMS[0])]
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
         dr.kernel_history()
-        if backward:
-            dr.enable_grad(net['weights'])
-        y = list(net(nn.CoopVec(*x)))
-        out = sum(y[1:], y[0])
-        if backward:
-            dr.backward(out)
-            out = dr.grad(net['weights'])
-        dr.eval(out)
+        dr.eval(bench_profile.mlp_output(net, x, backward))
         history = dr.kernel_history()
     return [bench_profile.ir_counts(k['ir'].getvalue()) for k in history if k['type'] == dr.KernelType.JIT]
 
