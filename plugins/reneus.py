@@ -49,6 +49,11 @@ class RayTreeResult:
     """Number of samples behind ``eikonal``."""
     normal: mi.Vector3f
     """Normals of the inside segments, accumulated with the same weights as L."""
+    nearest: mi.Float
+    """Σ over the ray's inside segments that miss the surface (g > 0 everywhere) of the SDF where
+    each passes nearest it, weighted as L (with its gradient; the ``reach`` term of the loss)."""
+    nearest_color: mi.Color3f
+    """The pixel value those segments would bring if they ended there (no gradient)."""
 
 
 class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
@@ -264,7 +269,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             self._trace_container(surroundings, rays, acc, jitter)
         L = acc.result()
         return RayTreeResult(color=self.tonemap(L), L=L, mask=acc.mask, sparsity=acc.sparsity,
-                             eikonal=acc.eikonal, n_samples=acc.n_samples, normal=acc.normal)
+                             eikonal=acc.eikonal, n_samples=acc.n_samples, normal=acc.normal,
+                             nearest=acc.nearest, nearest_color=self.tonemap(acc.nearest_color))
 
     def _cos_anneal_ratio(self):
         """The step's ratio, opaque: kernels read it from memory rather than compile anew for each value."""
@@ -405,7 +411,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                            cos_anneal_ratio=self._cos_anneal_ratio(),
                            sigma_a=None if σ is None else σ * self.frame.scale)
         acc.add(s.camera, s.β * vr.color, mi.Bool(True))
-        acc.add_segment(s.camera, _mean(s.β) * vr.normal, 1.0 - vr.transmittance, vr.eikonal, vr.n_samples)
+        acc.add_segment(s.camera, s.β, vr)
         beyond = mi.Color3f(vr.transmittance) if σ is None else vr.transmittance * dr.exp(-σ * t)
         dr.scatter(T, beyond, seg)
         return T
@@ -499,6 +505,8 @@ class _Accumulator:
         self.eikonal = dr.zeros(mi.Float, n)
         self.n_samples = dr.zeros(mi.Float, n)
         self.normal = dr.zeros(mi.Vector3f, n)
+        self.nearest = dr.zeros(mi.Float, n)
+        self.nearest_color = dr.zeros(mi.Color3f, n)
 
     def mark_container(self, camera, hit):
         dr.scatter(self.mask, hit, camera)
@@ -506,16 +514,22 @@ class _Accumulator:
     def add(self, camera, value, active):
         dr.scatter_add(self.L, value, camera, active)
 
-    def add_segment(self, camera, normal, opacity, eikonal, n_samples):
-        dr.scatter_add(self.normal, normal, camera)
+    def add_segment(self, camera, β: mi.Color3f, vr):
+        """A volume-rendered segment's loss terms, its path's weight ``β`` applied where they sum as L does."""
+        opacity = 1.0 - vr.transmittance
+        dr.scatter_add(self.normal, _mean(β) * vr.normal, camera)
         dr.scatter_add(self.sparsity, opacity, camera)
-        dr.scatter_add(self.eikonal, eikonal, camera)
-        dr.scatter_add(self.n_samples, mi.Float(n_samples) + 0.0 * opacity, camera)
+        dr.scatter_add(self.eikonal, vr.eikonal, camera)
+        dr.scatter_add(self.n_samples, mi.Float(vr.n_samples) + 0.0 * opacity, camera)
+        misses = dr.detach(vr.nearest) > 0.0
+        dr.scatter_add(self.nearest, _mean(dr.detach(β)) * vr.nearest, camera, misses)
+        dr.scatter_add(self.nearest_color, dr.detach(β) * vr.nearest_color, camera, misses)
 
     def result(self) -> mi.Color3f:
         # The sums are scatter targets: handed on unevaluated, a later kernel
         # (the film's splat) meets them dirty and Dr.Jit aborts.
-        dr.eval(self.L, self.mask, self.sparsity, self.eikonal, self.n_samples, self.normal)
+        dr.eval(self.L, self.mask, self.sparsity, self.eikonal, self.n_samples, self.normal, self.nearest,
+                self.nearest_color)
         return self.L
 
 

@@ -196,6 +196,13 @@ class TrainConfig:
     """λ1, weight of the transmittance sparsity prior L_trans (0 disables it)."""
     eikonal_weight: float = 0.1
     """λ2, weight of the Eikonal regulariser L_reg."""
+    reach_weight: float = 0.0
+    """Weight of the `reach` term (beyond the paper; 0 disables it): rays whose pixel the
+    field misses lower the SDF where they pass nearest the surface, so that legs and antennae
+    grow out where NeuS's density gives them no gradient (`reneus_mi.train.losses.reach`)."""
+    reach_threshold: float = 0.05
+    """Pixel misfit (mean over channels, pixel values in [0, 1]) below which a ray does not
+    pull with `reach`: what noise and the light leave everywhere."""
     seed: int = 0
     """Seed of the ray batches and the stratified jitter: a fixed seed gives the same run."""
     log_every: int = 1
@@ -229,7 +236,8 @@ class TrainConfig:
                                       'learning_rate', 'divergence_factor'),
                       at_least_zero=('sample_budget', 'warm_up', 'anneal_end', 'validate_every', 'checkpoint_every',
                                      'max_image_size',
-                                     'validation_view', 'trans_weight', 'eikonal_weight',
+                                     'validation_view', 'trans_weight', 'eikonal_weight', 'reach_weight',
+                                     'reach_threshold',
                                      'learning_rate_alpha', 'max_minutes', 'seed', 'sharpness_start'))
         check_choice(self, 'postprocess', POSTPROCESS_MODES)
         if self.sharpness_start and not self.sharpness_end >= self.sharpness_start:

@@ -49,6 +49,12 @@ class VolumeResult:
     n_samples: mi.UInt32
     """Sections (field evaluations) per segment, to turn ``eikonal`` into a mean
     (0 for a segment that the occupancy grid skipped)."""
+    nearest: mi.Float
+    """The SDF g at the segment's section of least g, with its gradient: where the segment passes
+    nearest the surface, and where a part the field has not grown yet would have to begin
+    (0 for a segment that the occupancy grid skipped)."""
+    nearest_color: mi.Color3f
+    """The radiance c at that section (no gradient): what the segment would bring if it ended there."""
 
 
 def _check_widths(**arrays) -> int:
@@ -102,7 +108,8 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
 
     return VolumeResult(color=spread(mi.Color3f, r.color, 0.0), transmittance=spread(mi.Float, r.transmittance, 1.0),
                         depth=spread(mi.Float, r.depth, 0.0), normal=spread(mi.Vector3f, r.normal, 0.0),
-                        eikonal=spread(mi.Float, r.eikonal, 0.0), n_samples=spread(mi.UInt32, r.n_samples, 0))
+                        eikonal=spread(mi.Float, r.eikonal, 0.0), n_samples=spread(mi.UInt32, r.n_samples, 0),
+                        nearest=spread(mi.Float, r.nearest, 0.0), nearest_color=spread(mi.Color3f, r.nearest_color, 0.0))
 
 
 def _stretch(t: mi.Float, t_near: mi.Float, t_far: mi.Float, n: int) -> mi.Float:
@@ -123,7 +130,8 @@ def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio, sigma
     n = sampler.config.n_coarse + sampler.config.n_fine + 1
     if n_rays == 0:
         return VolumeResult(dr.zeros(mi.Color3f, 0), dr.zeros(mi.Float, 0), dr.zeros(mi.Float, 0),
-                            dr.zeros(mi.Vector3f, 0), dr.zeros(mi.Float, 0), dr.zeros(mi.UInt32, 0))
+                            dr.zeros(mi.Vector3f, 0), dr.zeros(mi.Float, 0), dr.zeros(mi.UInt32, 0),
+                            dr.zeros(mi.Float, 0), dr.zeros(mi.Color3f, 0))
 
     t, n_t = sampler.sample(field, o, d, t_near, t_far, jitter)
     ray, i = segment_layout(n_rays, n)
@@ -155,9 +163,14 @@ def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio, sigma
     eikonal = dr.square(grad_norm - 1.0)
     # One kernel for both networks: each block reduction below evaluates its
     # input, and would otherwise re-run the networks behind it.
-    dr.eval(alpha, color, normal, eikonal)
+    dr.eval(alpha, color, normal, eikonal, sdf)
 
     weights, transmittance = composite(alpha, n)
-    color, depth, normal, eikonal = dr.block_sum((color * weights, t_mid * weights, normal * weights, eikonal), n)
-    return VolumeResult(color=color, transmittance=transmittance, depth=depth, normal=normal,
-                        eikonal=eikonal, n_samples=dr.full(mi.UInt32, n, n_rays))
+    g = dr.detach(sdf)
+    at_nearest = dr.select(g <= dr.repeat(dr.block_reduce(dr.ReduceOp.Min, g, n), n), 1.0, 0.0)
+    color_sum, depth, normal, eikonal, nearest, nearest_color, ties = dr.block_sum(
+        (color * weights, t_mid * weights, normal * weights, eikonal, sdf * at_nearest,
+         dr.detach(color) * at_nearest, at_nearest), n)
+    return VolumeResult(color=color_sum, transmittance=transmittance, depth=depth, normal=normal,
+                        eikonal=eikonal, n_samples=dr.full(mi.UInt32, n, n_rays),
+                        nearest=nearest / ties, nearest_color=nearest_color / ties)

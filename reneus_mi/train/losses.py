@@ -26,8 +26,9 @@ class Term(NamedTuple):
 
 def loss_dict(result, target: mi.Color3f, cfg, silhouette: mi.Float | None = None) -> dict[str, Term]:
     """The terms of a batch by name: ``color`` (Eq. 14, weight 1), ``trans`` (Eq. 15, λ1 =
-    ``cfg.trans_weight``), ``eikonal`` (Eq. 16, λ2 = ``cfg.eikonal_weight``) and, given its
-    value, ``silhouette`` (``cfg.refine.silhouette_weight``).
+    ``cfg.trans_weight``), ``eikonal`` (Eq. 16, λ2 = ``cfg.eikonal_weight``), where its weight
+    is not 0 ``reach`` (``cfg.reach_weight``) and, given its value, ``silhouette``
+    (``cfg.refine.silhouette_weight``).
 
     ``result`` is :meth:`ReNeuSIntegrator.render_rays`'s, ``target`` the photographs'
     colours, ``cfg`` a :class:`~reneus_mi.config.TrainConfig`.
@@ -35,6 +36,8 @@ def loss_dict(result, target: mi.Color3f, cfg, silhouette: mi.Float | None = Non
     terms = {'color': Term(color_l1(result.color, target), 1.0),
              'trans': Term(transmittance_sparsity(result.sparsity), cfg.trans_weight),
              'eikonal': Term(eikonal(result.eikonal, result.n_samples), cfg.eikonal_weight)}
+    if cfg.reach_weight:
+        terms['reach'] = Term(reach(result, target, cfg.reach_threshold), cfg.reach_weight)
     if silhouette is not None:
         terms['silhouette'] = Term(silhouette, cfg.refine.silhouette_weight)
     return terms
@@ -69,6 +72,23 @@ def transmittance_sparsity(sparsity: mi.Float) -> mi.Float:
 def eikonal(eikonal_sum: mi.Float, n_samples: mi.Float) -> mi.Float:
     """L_reg (Eq. 16): mean of (|∇g| - 1)² over every sample of the batch."""
     return dr.sum(eikonal_sum) / dr.maximum(dr.sum(n_samples), 1.0)
+
+
+def reach(result, target: mi.Color3f, threshold: float) -> mi.Float:
+    """Beyond the paper: the pull that grows thin parts. A ray that misses the surface where its
+    photograph shows the specimen (a leg not grown yet) passes the body at an SDF g of
+    millimetres, where NeuS's density, and so the colour's gradient, is exp(-s g): nothing.
+    This term is g where the ray passes nearest the surface (``result.nearest``), weighted by
+    how much nearer its photograph the pixel would come were the surface there: the mean over
+    channels of |pixel - photograph| where a surface of the field's colour there would move the
+    pixel toward the photograph (and minus it where away), less ``threshold`` (the misfit that
+    noise and the light leave everywhere), at least 0; no gradient flows through the weight.
+    Its gradient lowers g there until a surface forms and the colour's gradient takes over; a
+    surface grown wrongly is then undone by the colour's, as any other."""
+    pixel = dr.detach(result.color)
+    gain = dr.sum((pixel - target) * dr.sign(pixel - result.nearest_color), axis=0) / 3.0
+    weight = dr.detach(dr.maximum(gain - threshold, 0.0))
+    return mean(weight * result.nearest)
 
 
 def mse(pred: mi.Color3f, target: mi.Color3f, among: mi.Bool | None = None) -> mi.Float:

@@ -177,3 +177,27 @@ def test_reverse_gathers_reuse_their_kernels_at_any_width():
 
     first = kernels(1001)
     assert first and all(kernels(width) == first for width in (1003, 1007))
+
+
+def test_nearest_is_where_a_segment_passes_closest_to_the_surface():
+    """The ``reach`` term's input: a ray that misses the sphere reports the SDF where it passes
+    nearest (its distance to the sphere, to within the sections' spacing), with the gradient
+    of the SDF there; a ray that hits reports a negative value."""
+    y = np.array([0.0, 0.3, 0.6, 0.75, 0.9])
+    z = np.zeros_like(y)
+    field = ParamSphere(radius=0.5, inv_s=20.0, scale=1.2)
+    for value in field.p.values():
+        dr.enable_grad(value)
+    r = volume_render(field, SamplerConfig(n_coarse=64, n_fine=0).setup(), *_rays(y, z))
+    nearest = np.asarray(r.nearest)
+    miss = y > 0.5
+    # 64 sections over [0.5, 2.5]: a midpoint lies within 1/64 of the closest point, where the
+    # distance grows by at most (1/64)^2 / (2 y).
+    np.testing.assert_allclose(nearest[miss], 1.2 * (y[miss] - 0.5), atol=1.2 * (1 / 64) ** 2 / 1.2)
+    assert np.all(nearest[~miss] < 0.0)
+    # The sphere's own colour at its nearest point (the ray's x = 0 there: shade 0.6 + 0.3 n_y).
+    np.testing.assert_allclose(np.asarray(r.nearest_color).T[miss],
+                               np.outer(0.6 + 0.3 * 1.0, COLOR).repeat(miss.sum(), 0), atol=2e-3)
+    dr.backward(dr.sum(r.nearest))
+    # g = k (|x| - r): dg/dr = -k at every point, one point per ray.
+    assert dr.grad(field.p['radius'])[0] == pytest.approx(-1.2 * len(y), rel=1e-5)

@@ -21,3 +21,22 @@ def test_the_step_sums_and_logs_every_term_by_name(scene_xml, tmp_path):
                                           * e['eikonal'] + cfg.refine.silhouette_weight * e['silhouette'],
                                           rel=1e-5)
         assert e['silhouette'] > 0
+
+
+def test_reach_pulls_only_where_a_surface_would_bring_the_pixel_nearer_its_photograph():
+    """Rays: a dark leg missed on a bright board (pulls by its misfit less the threshold), the
+    same within the threshold (no pull), a pixel the field's dark colour would move away from
+    its bright photograph (no pull)."""
+    import drjit as dr
+    import mitsuba as mi
+    from types import SimpleNamespace
+    from reneus_mi.train.losses import reach
+    pixel = mi.Color3f([0.8, 0.8, 0.3], [0.8, 0.8, 0.3], [0.8, 0.8, 0.3])
+    target = mi.Color3f([0.3, 0.78, 0.6], [0.3, 0.78, 0.6], [0.3, 0.78, 0.6])
+    nearest_color = mi.Color3f(0.2)
+    nearest = mi.Float([0.02, 0.02, 0.02])
+    dr.enable_grad(nearest)
+    value = reach(SimpleNamespace(color=pixel, nearest_color=nearest_color, nearest=nearest), target, 0.05)
+    dr.backward(value)
+    assert dr.grad(nearest).numpy() == pytest.approx([(0.5 - 0.05) / 3, 0.0, 0.0])
+    assert value[0] == pytest.approx(0.02 * 0.45 / 3)
