@@ -13,8 +13,8 @@ small   a small NeuS field (32 x 4), 32 + 16 samples, 300 steps of 256
 fast    a hash-grid SDF (7 levels to 256, 2^16 entries) with tiny MLPs and
         an analytic gradient, 24 + 8 samples, a 64^3 occupancy grid that
         skips empty segments, λ1 = 0.01, the sharpness s held below a cap
-        that rises from 64 to 512, 4096 rays a step: the CPU and GPU
-        workhorse
+        that rises from 64 to 512, the reach term, 4096 rays a step: the
+        CPU and GPU workhorse
 tiny    tests and notebook smoke runs: width 16, 8 + 8 samples, 64 rays
         per step (seconds per run; not for results)
 ======= ==============================================================
@@ -34,9 +34,11 @@ from reneus_mi.utils.errors import ReneusError
 #: NeuS's field at CPU size (the small and the cpu preset's architecture differ in width only).
 _SMALL_NEUS = dict(layers=4, color_layers=2, multires=4, multires_view=2, init_radius=0.3)
 #: The hash-grid presets' sampling and training. λ1 = 0.1 (the paper's L_trans weight) empties a
-#: hash grid (docs/constants.md); a free sharpness outruns thin parts (docs/quality.md).
+#: hash grid (docs/constants.md); a free sharpness outruns thin parts (docs/quality.md), and
+#: legs not grown yet get their gradient from the reach term (weight and threshold: docs/constants.md).
 _GRID_SAMPLER = SamplerConfig(n_coarse=24, n_fine=8, n_upsample_steps=2, occupancy_resolution=64)
-_GRID_TRAIN = dict(learning_rate=1e-3, warm_up=50, trans_weight=0.01, sharpness_start=64.0)
+_GRID_TRAIN = dict(learning_rate=1e-3, warm_up=50, trans_weight=0.01, sharpness_start=64.0,
+                   reach_weight=1.0, reach_threshold=0.1)
 #: Rays a step of `fast`: on a 2-core CPU a step of a capture costs some 63 ms whatever its batch
 #: (tracing, code generation, launches) and 45 ms per 1,024 rays, so 4,096 rays give 1.8x the
 #: rays a second of 1,024, and at 10 minutes the same meshes or better (docs/profile.md,

@@ -53,11 +53,10 @@ def limb_recall(folder, pixels: PixelSamplerConfig, name: str) -> tuple[float, f
 
 @pytest.mark.slow
 def test_legs_and_antennae_are_kept(insect):
-    """Measured (400 steps, 40 s): the limbs' recall 0.912, the whole's precision 0.947 (seed
-    0; with a free sharpness 0.924 and 0.934, and 0.875 and 0.938 before the errors' blocks
-    were tiles whose unseen pixels take the last error drawn), with rays through random points
-    of the pixels and half of each batch drawn by error (the defaults); with neither (rays
-    through the pixels' centres, drawn uniformly) 0.726 and 0.964: this test fails then."""
+    """Measured (400 steps, 40 s): the limbs' recall 0.983, the whole's precision 0.937 (seed
+    0). Without the reach term (``train.reach_weight=0``) 0.917 and 0.926: this test fails
+    then; without it and with rays through the pixels' centres, drawn uniformly, 0.726 and
+    0.964."""
     recall, precision = limb_recall(insect, PixelSamplerConfig(), 'default')
     print(f'limbs: recall {recall:.3f}, precision of the whole {precision:.3f}')
-    assert recall > 0.8 and precision > 0.9
+    assert recall > 0.95 and precision > 0.9
