@@ -67,9 +67,11 @@ def test_reconstruction(tmp_path, monkeypatch):
     λ1, λ2 = r['weights']
     assert (λ1, λ2) == (train.trans_weight, train.eikonal_weight)
     assert len(h['loss']) == r['steps'] and np.all(np.isfinite(h['loss']))
-    # The loss of Eq. 13 is the weighted sum of its three terms at every step.
+    # The loss of Eq. 13 is the weighted sum of its three terms at every step (and the reach
+    # term's, where the preset has it).
     np.testing.assert_allclose(h['loss'], np.asarray(h['color']) + λ1 * np.asarray(h['trans'])
-                               + λ2 * np.asarray(h['eikonal']), rtol=1e-5)
+                               + λ2 * np.asarray(h['eikonal'])
+                               + train.reach_weight * np.asarray(h.get('reach', 0.0)), rtol=1e-5)
     # params.update(opt) wrote into the field that mi.render renders: the image moved.
     assert r['changed'] > 1e-3, r['changed']
     assert r['vertices'] > 0 and np.isfinite(r['chamfer'])

@@ -50,9 +50,10 @@ class VolumeResult:
     """Sections (field evaluations) per segment, to turn ``eikonal`` into a mean
     (0 for a segment that the occupancy grid skipped)."""
     nearest: mi.Float
-    """The SDF g at the segment's section of least g, with its gradient: where the segment passes
-    nearest the surface, and where a part the field has not grown yet would have to begin
-    (0 for a segment that the occupancy grid skipped)."""
+    """The SDF g at the segment's section of least g, with its gradient in the field's parameters
+    only (not through where the section lies): where the segment passes nearest the surface, and
+    where a part the field has not grown yet would have to begin (0 for a segment that the
+    occupancy grid skipped)."""
     nearest_color: mi.Color3f
     """The radiance c at that section (no gradient): what the segment would bring if it ended there."""
 
@@ -168,8 +169,11 @@ def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio, sigma
     weights, transmittance = composite(alpha, n)
     g = dr.detach(sdf)
     at_nearest = dr.select(g <= dr.repeat(dr.block_reduce(dr.ReduceOp.Min, g, n), n), 1.0, 0.0)
+    # The reach term moves the field, not the rays: where the glass is refined the sections move
+    # with it, and g's derivative along that motion (∇g · dx) is taken out, to first order.
+    g_field = sdf - dr.dot(dr.detach(grad), x - dr.detach(x)) if dr.grad_enabled(x) else sdf
     color_sum, depth, normal, eikonal, nearest, nearest_color, ties = dr.block_sum(
-        (color * weights, t_mid * weights, normal * weights, eikonal, sdf * at_nearest,
+        (color * weights, t_mid * weights, normal * weights, eikonal, g_field * at_nearest,
          dr.detach(color) * at_nearest, at_nearest), n)
     return VolumeResult(color=color_sum, transmittance=transmittance, depth=depth, normal=normal,
                         eikonal=eikonal, n_samples=dr.full(mi.UInt32, n, n_rays),
