@@ -22,7 +22,8 @@ import numpy as np
 
 import reneus_mi  # noqa: F401  (variant, plugins)
 from reneus_mi.presets import PRESETS, preset
-from reneus_mi.render.interfaces import absorbing_medium, dielectric, display_case, jar
+from reneus_mi.geometry.container import absorbing_medium
+from reneus_mi.render.interfaces import dielectric, display_case, jar
 
 HALF = (0.55, 0.45, 0.5)
 ROTATION = mi.ScalarTransform4f().rotate([0, 1, 0], 25)

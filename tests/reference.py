@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.render.interfaces import absorbing_medium
+from reneus_mi.geometry.container import absorbing_medium
 
 SPHERE_RADIUS = 0.3
 SPHERE_COLOR = (0.9, 0.35, 0.1)

@@ -2,7 +2,8 @@
 
 The order, bottom to top (``docs/architecture.md`` draws it in words). A module's layer is its
 package under ``reneus_mi`` (``reneus_mi/train/trainer.py``: ``train``), or its own name at the
-top (``reneus_mi/config.py``: ``config``); the integrator's ``plugins/`` has a layer of its own.
+top (``reneus_mi/config.py``: ``config``); the integrator's ``plugins/`` has a layer of its own,
+and a package's ``__main__.py`` is a command.
 Every ``import`` counts, at the top of a file or inside a function.
 """
 import ast
@@ -24,8 +25,8 @@ LAYERS = [
     ('capture',),
     ('export',),
     ('batch',),
-    # The commands.
-    ('optimize', 'scene', 'extract', 'evaluate', 'synth', 'simulate', 'board', 'colmap'),
+    # The commands, and each room's __main__.py.
+    ('optimize', 'scene', 'extract', 'evaluate', 'synth', 'simulate', 'board', 'colmap', '__main__'),
 ]
 
 #: Each layer's height in LAYERS.
@@ -40,11 +41,8 @@ KNOWN = {
     ('reneus_mi/render/properties.py', 'config'): 'the XML properties to configs: above config',
     ('reneus_mi/render/properties.py', 'presets'): 'the same',
     ('reneus_mi/data/scene_xml.py', 'config'): 'RenderConfig beside the renderer, below data',
-    ('reneus_mi/data/scene_xml.py', 'render'): 'absorbing_medium with the scene writer, below render',
-    ('reneus_mi/data/synth.py', 'render'): 'the same',
     ('reneus_mi/utils/cli.py', 'config'): "text_value's field kinds: the CLI generator above config",
     ('reneus_mi/utils/variant.py', 'plugins'): "the integrator's registration from the package's entry",
-    ('reneus_mi/export/package.py', 'batch'): "a batch folder's reading below export",
 }
 
 
@@ -52,6 +50,8 @@ def _layer_of(path: pathlib.Path) -> str:
     parts = path.relative_to(ROOT).with_suffix('').parts
     if parts[0] == 'plugins':
         return 'plugins'
+    if parts[-1] == '__main__':
+        return '__main__'
     return parts[1] if len(parts) > 2 or parts[1] != '__init__' else 'reneus_mi'
 
 

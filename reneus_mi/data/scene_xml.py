@@ -35,7 +35,7 @@ from reneus_mi.data.dataset import CONTACT_GAP, Dataset
 from reneus_mi.data.images import write_image
 from reneus_mi.geometry.container import load_container, mesh_type, mitsuba_reads
 from reneus_mi.paper import AMBIENT, IOR
-from reneus_mi.render.interfaces import absorbing_medium
+from reneus_mi.geometry.container import absorbing_medium
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_export, atomic_open

@@ -46,7 +46,7 @@ from reneus_mi.geometry.container import container_shape, shading_mesh
 from reneus_mi.geometry.mesh import mitsuba_mesh
 from reneus_mi.geometry.shapes import CONTAINERS, write_container
 from reneus_mi.paper import AMBIENT, GAMMA, IOR
-from reneus_mi.render.interfaces import absorbing_medium
+from reneus_mi.geometry.container import absorbing_medium
 from reneus_mi.utils import guards, limits
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_folder, atomic_mitsuba_write, atomic_write_text

@@ -8,7 +8,8 @@ import os
 import shutil
 import sys
 
-from reneus_mi.export.package import IDENTIFIERS, export_batch, export_run
+from reneus_mi.batch.packages import export_batch
+from reneus_mi.export.package import IDENTIFIERS, export_run
 from reneus_mi.train.run_folder import RunFolder
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import exit_on_error

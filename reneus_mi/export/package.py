@@ -39,7 +39,6 @@ import numpy as np
 import trimesh
 
 import reneus_mi
-from reneus_mi.batch.batch_folder import BatchFolder
 from reneus_mi.data import load_dataset
 from reneus_mi.geometry.mesh import decimated_glb, load_mesh
 from reneus_mi.geometry.surface import components
@@ -85,7 +84,7 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
                           'mesh')
     identifiers = check_identifiers(identifiers or {})
     out = guards.check_output_dir(out, inputs=[run], what='package folder')
-    name = _file_name(identifiers.get('catalogNumber') or os.path.basename(os.path.abspath(run)))
+    name = package_name(identifiers.get('catalogNumber') or os.path.basename(os.path.abspath(run)))
     os.makedirs(out, exist_ok=True)
     mesh = load_mesh(folder.mesh)
     atomic_export(mesh, os.path.join(out, f'{name}.ply'))
@@ -201,7 +200,7 @@ def _dataset(data: str | None):
         return None
 
 
-def _file_name(text: str) -> str:
+def package_name(text: str) -> str:
     """A catalogue number as a file name (separators and spaces become _)."""
     return ''.join(c if c.isalnum() or c in '.-_' else '_' for c in str(text)).strip('.') or 'specimen'
 
@@ -310,38 +309,3 @@ def _record(metadata: dict, name: str) -> str:
     writer.writeheader()
     writer.writerow({k: _cell(v) for k, v in row.items()})
     return text.getvalue()
-
-
-def export_batch(runs_dir: str, out: str, **options) -> tuple[list[str], dict[str, str]]:
-    """Every finished specimen of a batch folder into ``out/NAME``, with the identifiers its
-    manifest row gave; returns the packages written and the specimens left out, with why."""
-    batch = BatchFolder(runs_dir)
-    specimens = read_json(batch.collection)
-    if specimens is None:
-        raise ReneusError(f'{runs_dir}: not a run folder (no result.json) nor a batch folder (no '
-                          f'{os.path.relpath(batch.collection, runs_dir)}); expected one of them')
-    given = check_identifiers(options.pop('identifiers', {}))
-    # Which specimens go, each checked, before anything is written.
-    chosen, left_out = [], {}
-    for s in specimens:
-        state = batch.run(s['name']).state()
-        if state.name != 'finished':
-            left_out[s['name']] = str(state)
-            continue
-        identifiers = {**check_identifiers(s.get('identifiers', {}), f"{s['name']}: "), **given}
-        chosen.append((s['name'], identifiers, _file_name(identifiers.get('catalogNumber') or s['name'])))
-    if len(chosen) > 1 and given.get('catalogNumber'):
-        raise ReneusError(f"--catalogNumber {given['catalogNumber']!r} for {len(chosen)} specimens "
-                          f"({', '.join(n for n, _, _ in chosen)}); expected one catalogue number each: give "
-                          "them in the manifest's catalogNumber column")
-    names = [name for _, _, name in chosen]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise ReneusError(f"{', '.join(twice)}: the package name of more than one specimen; expected a "
-                          'catalogue number (or a name) each')
-    out = guards.check_output_dir(out, inputs=[runs_dir], what='packages folder')
-    written = []
-    for specimen, identifiers, name in chosen:
-        export_run(batch.run(specimen).path, os.path.join(out, name), identifiers=identifiers, **options)
-        written.append(os.path.join(out, name))
-    return written, left_out

@@ -1,4 +1,4 @@
-"""The container: the closed glass mesh the rays pass through, its checks and shading normals.
+"""The container: the closed glass mesh the rays pass through, its checks, shading normals and medium.
 
 The paper's method needs the container as a closed, outward-facing triangle
 mesh in world coordinates (:func:`check_container`; as a scene holds it:
@@ -376,3 +376,32 @@ def _check_disjoint(parts, where: str, etas=None, names=None) -> None:
 def _probes(mesh) -> np.ndarray:
     """Points of a mesh's surface that tell whether it reaches into another: vertices and face centres."""
     return np.concatenate([mesh.vertices, mesh.triangles_center])
+
+
+def medium_absorption(shape, side: str = 'interior') -> tuple[float, float, float] | None:
+    """The absorption coefficient (RGB, per scene unit) of a shape's ``side`` medium, Mitsuba's
+    ``homogeneous`` with albedo 0 (pure absorption, what ``volpath`` renders): sigma_t times its
+    scale; None where it has none."""
+    medium = shape.interior_medium() if side == 'interior' else shape.exterior_medium()
+    if medium is None:
+        return None
+    params = mi.traverse(medium)
+    if medium.class_name() != 'HomogeneousMedium' or 'sigma_t.value.value' not in params:
+        raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {medium.class_name()} {side}; "
+                          'expected a homogeneous medium with a constant sigma_t')
+    albedo = np.array(params['albedo.value.value'], np.float64).ravel()
+    if albedo.max() > 1e-6:
+        raise ReneusError(f"reneus integrator: shape '{shape.id()}': medium albedo {albedo.round(4).tolist()}; "
+                          'expected 0 (the medium absorbs, it does not scatter)')
+    sigma = np.array(params['sigma_t.value.value'], np.float64).ravel() * float(params['scale'])
+    return tuple(np.broadcast_to(sigma, 3).round(9).tolist())
+
+
+def absorbing_medium(sigma_a) -> dict:
+    """Mitsuba's ``homogeneous`` medium that absorbs ``sigma_a`` (RGB per scene unit) and
+    scatters nothing, as a ``load_dict`` dict: what :func:`medium_absorption` reads back. An
+    RGB sigma_t is a reflectance (at most 1 per channel), so the largest channel is the scale."""
+    sigma_a = np.broadcast_to(np.asarray(sigma_a, np.float64), (3,))
+    scale = float(sigma_a.max()) if sigma_a.max() > 0 else 1.0
+    return {'type': 'homogeneous', 'albedo': 0.0, 'scale': scale,
+            'sigma_t': {'type': 'rgb', 'value': (sigma_a / scale).tolist()}}

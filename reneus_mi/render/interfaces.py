@@ -24,7 +24,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.geometry.container import scene_of
+from reneus_mi.geometry.container import absorbing_medium, medium_absorption, scene_of
 from reneus_mi.utils.errors import ReneusError
 
 #: Crossings followed to tell inside from outside; a closed container has a handful.
@@ -162,35 +162,6 @@ def _points_on(scene: mi.Scene, name: str) -> np.ndarray:
                           '(docs/containers.md)')
     t = np.array(si.t, np.float64)
     return c + d * (t - 1e-4 * size)[:, None]
-
-
-def medium_absorption(shape, side: str = 'interior') -> tuple[float, float, float] | None:
-    """The absorption coefficient (RGB, per scene unit) of a shape's ``side`` medium, Mitsuba's
-    ``homogeneous`` with albedo 0 (pure absorption, what ``volpath`` renders): sigma_t times its
-    scale; None where it has none."""
-    medium = shape.interior_medium() if side == 'interior' else shape.exterior_medium()
-    if medium is None:
-        return None
-    params = mi.traverse(medium)
-    if medium.class_name() != 'HomogeneousMedium' or 'sigma_t.value.value' not in params:
-        raise ReneusError(f"reneus integrator: shape '{shape.id()}' has a {medium.class_name()} {side}; "
-                          'expected a homogeneous medium with a constant sigma_t')
-    albedo = np.array(params['albedo.value.value'], np.float64).ravel()
-    if albedo.max() > 1e-6:
-        raise ReneusError(f"reneus integrator: shape '{shape.id()}': medium albedo {albedo.round(4).tolist()}; "
-                          'expected 0 (the medium absorbs, it does not scatter)')
-    sigma = np.array(params['sigma_t.value.value'], np.float64).ravel() * float(params['scale'])
-    return tuple(np.broadcast_to(sigma, 3).round(9).tolist())
-
-
-def absorbing_medium(sigma_a) -> dict:
-    """Mitsuba's ``homogeneous`` medium that absorbs ``sigma_a`` (RGB per scene unit) and
-    scatters nothing, as a ``load_dict`` dict: what :func:`medium_absorption` reads back. An
-    RGB sigma_t is a reflectance (at most 1 per channel), so the largest channel is the scale."""
-    sigma_a = np.broadcast_to(np.asarray(sigma_a, np.float64), (3,))
-    scale = float(sigma_a.max()) if sigma_a.max() > 0 else 1.0
-    return {'type': 'homogeneous', 'albedo': 0.0, 'scale': scale,
-            'sigma_t': {'type': 'rgb', 'value': (sigma_a / scale).tolist()}}
 
 
 # ------------------------------------------------------------ common containers

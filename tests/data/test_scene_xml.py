@@ -12,7 +12,7 @@ from reneus_mi.data import Dataset, write_dataset
 from reneus_mi.data.cameras import intrinsics, look_at
 from reneus_mi.data.masks import container_masks
 from reneus_mi.data.scene_xml import sensor_dict, write_scene
-from reneus_mi.render.interfaces import medium_absorption
+from reneus_mi.geometry.container import medium_absorption
 from reneus_mi.scene import main
 
 H, W = 12, 16
