@@ -1,4 +1,5 @@
-"""The loss of Eq. 13 by term: L = L_color + λ1 L_trans + λ2 L_reg, over a batch of rays.
+"""The loss of Eq. 13 by term: L = L_color + λ1 L_trans + λ2 L_reg, over a batch of rays
+(and, beyond the paper, the reach term that grows thin parts: :func:`reach`).
 
 :func:`loss_dict` returns the paper's terms (and the container's silhouette
 term while its pose is refined) by name with their weights, as nerfstudio's

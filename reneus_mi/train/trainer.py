@@ -259,8 +259,11 @@ class Trainer:
         ray, target = self.pixels.batch(it, batch)
         result = self.integrator.render_rays(self.scene, ray)
         if self.pixels.config.rays_per_pixel > 1:
-            # A pixel's value: its rays' mean radiance, tone-mapped as the camera's sensor does.
-            result = replace(result, color=self.integrator.tonemap(self.pixels.pixel_mean(result.L)))
+            # A pixel's value: its rays' mean radiance, tone-mapped as the camera's sensor does
+            # (and the reach term's inputs per pixel, as the colour it is weighed with).
+            per_pixel = self.pixels.pixel_mean
+            result = replace(result, color=self.integrator.tonemap(per_pixel(result.L)),
+                             nearest=per_pixel(result.nearest), nearest_color=per_pixel(result.nearest_color))
         self.pixels.record(result.color, target)
         silhouette = None if self.silhouette is None else self.silhouette(it, self.surroundings.pose)
         terms = losses.loss_dict(result, target, cfg, silhouette)

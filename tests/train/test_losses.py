@@ -23,6 +23,19 @@ def test_the_step_sums_and_logs_every_term_by_name(scene_xml, tmp_path):
         assert e['silhouette'] > 0
 
 
+def test_the_reach_term_is_summed_and_logged_with_several_rays_a_pixel(scene_xml, tmp_path):
+    """The reach term's inputs are taken per pixel, as the colour is, when a pixel has four rays."""
+    from reneus_mi.train.pixel_sampler import PixelSamplerConfig
+    trainer = new_trainer(scene_xml, tmp_path, iterations=2, reach_weight=1.0,
+                          pixels=PixelSamplerConfig(rays_per_pixel=4))
+    trainer.run(progress=False)
+    cfg = trainer.cfg
+    for line in (tmp_path / 'log.jsonl').read_text().splitlines():
+        e = json.loads(line)
+        assert e['loss'] == pytest.approx(e['color'] + cfg.trans_weight * e['trans'] + cfg.eikonal_weight
+                                          * e['eikonal'] + e['reach'], rel=1e-5)
+
+
 def test_reach_pulls_only_where_a_surface_would_bring_the_pixel_nearer_its_photograph():
     """Rays: a dark leg missed on a bright board (pulls by its misfit less the threshold), the
     same within the threshold (no pull), a pixel the field's dark colour would move away from
