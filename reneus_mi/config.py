@@ -199,7 +199,10 @@ class TrainConfig:
     reach_weight: float = 0.0
     """Weight of the `reach` term (beyond the paper; 0 disables it): rays whose pixel the
     field misses lower the SDF where they pass nearest the surface, so that legs and antennae
-    grow out where NeuS's density gives them no gradient (`reneus_mi.train.losses.reach`)."""
+    grow out where NeuS's density gives them no gradient (`reneus_mi.train.losses.reach`).
+    Not while the glass or the light is refined (`refine`): the field then grows what the
+    glass's error leaves in the pixels, and takes part of it (a refined IOR came out 1.465 for
+    1.45 with it)."""
     reach_threshold: float = 0.05
     """Pixel misfit (mean over channels, pixel values in [0, 1]) below which a ray does not
     pull with `reach`: what noise and the light leave everywhere."""

@@ -28,8 +28,8 @@ class Term(NamedTuple):
 def loss_dict(result, target: mi.Color3f, cfg, silhouette: mi.Float | None = None) -> dict[str, Term]:
     """The terms of a batch by name: ``color`` (Eq. 14, weight 1), ``trans`` (Eq. 15, λ1 =
     ``cfg.trans_weight``), ``eikonal`` (Eq. 16, λ2 = ``cfg.eikonal_weight``), where its weight
-    is not 0 ``reach`` (``cfg.reach_weight``) and, given its value, ``silhouette``
-    (``cfg.refine.silhouette_weight``).
+    is not 0 and nothing but the field is refined ``reach`` (``cfg.reach_weight``) and, given
+    its value, ``silhouette`` (``cfg.refine.silhouette_weight``).
 
     ``result`` is :meth:`ReNeuSIntegrator.render_rays`'s, ``target`` the photographs'
     colours, ``cfg`` a :class:`~reneus_mi.config.TrainConfig`.
@@ -37,7 +37,7 @@ def loss_dict(result, target: mi.Color3f, cfg, silhouette: mi.Float | None = Non
     terms = {'color': Term(color_l1(result.color, target), 1.0),
              'trans': Term(transmittance_sparsity(result.sparsity), cfg.trans_weight),
              'eikonal': Term(eikonal(result.eikonal, result.n_samples), cfg.eikonal_weight)}
-    if cfg.reach_weight:
+    if cfg.reach_weight and not cfg.refine.any():
         terms['reach'] = Term(reach(result, target, cfg.reach_threshold), cfg.reach_weight)
     if silhouette is not None:
         terms['silhouette'] = Term(silhouette, cfg.refine.silhouette_weight)
