@@ -300,7 +300,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                 acc.mark_container(rays.camera, hit.valid)
             leaving = hit.valid & (dr.dot(rays.d, hit.n) > 0)
             acc.add(rays.camera, rays.β * outside(rays.o, rays.d, ~hit.valid), ~hit.valid)
-            in_field = hit.valid & (rays.region == field)
+            in_field = hit.valid & (rays.region == field) & self.state.field
             T = self._render_inside(rays, hit.t, in_field, acc, jitter, σ_field)
             if surroundings.sigma_a is not None:
                 # Segments in the other regions only absorb.

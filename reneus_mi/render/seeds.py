@@ -10,8 +10,8 @@ import drjit as dr
 import mitsuba as mi
 
 #: Streams of the step's random numbers: the pixels of the batch, the samples' jitter, the
-#: points of a pixel's rays within its strata.
-PIXELS, JITTER, STRATA = 0, 1, 2
+#: points of a pixel's rays within its strata, the pixels of the media's fit before training.
+PIXELS, JITTER, STRATA, MEDIA = 0, 1, 2, 3
 
 
 #: 2^64: PCG32's state is a 64-bit integer.

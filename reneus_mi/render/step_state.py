@@ -19,3 +19,6 @@ class StepState:
     seed: int | None = None
     """Seed of the step's random numbers: the stratified jitter of every segment's samples and
     the Russian roulette of low-weight branches (None: stratum midpoints, roulette stream 0)."""
+    field: bool = True
+    """Whether the field is rendered (False: the container empty, its media only absorbing: what
+    the photographs show where no specimen is, to which the media are fitted first)."""

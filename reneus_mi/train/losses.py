@@ -65,6 +65,16 @@ def color_l1(pred: mi.Color3f, target: mi.Color3f) -> mi.Float:
     return mean(dr.abs(pred - target))
 
 
+def welsch(pred: mi.Color3f, target: mi.Color3f, scale: float) -> mi.Float:
+    """Welsch's robust loss of the colour differences r, mean over rays and channels of
+    c² (1 - exp(-r² / 2c²)), c = ``scale``: differences well beyond c weigh nothing; fitted with
+    c shrinking, the estimate goes to where most residuals are 0 (the mode), where L1 would
+    settle at their median."""
+    r = pred - target
+    c2 = dr.opaque(mi.Float, scale * scale)
+    return mean(c2 * (1.0 - dr.exp(-dr.square(r) / (2.0 * c2))))
+
+
 def transmittance_sparsity(sparsity: mi.Float) -> mi.Float:
     """L_trans (Eq. 15): mean over rays of Σ_ℓ (1 - T_ℓ) over their inside segments."""
     return mean(sparsity)

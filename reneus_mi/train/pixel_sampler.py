@@ -151,6 +151,13 @@ class PixelSampler:
             index = dr.gather(mi.UInt32, index, lane % n)
         return self.rays(index, (x, y)), self.color(slot)
 
+    def uniform(self, step: int, n: int, stream: int) -> tuple[mi.Ray3f, mi.Color3f]:
+        """``n`` rays through the centres of masked pixels drawn uniformly from the ``stream`` of
+        the step's seeds, and their colours: a batch that leaves the error-driven draw as it is."""
+        slot = mi.PCG32(n, initstate=opaque_seed(step_seed(self.seed, step, stream))).next_uint32_bounded(
+            self.n_pixels)
+        return self.rays(dr.gather(mi.UInt32, self.pixels, slot)), self.color(slot)
+
     def pixel_mean(self, value):
         """Per drawn pixel, the mean of a per-ray value of the last :meth:`batch` over the
         pixel's rays (the value itself with one ray per pixel)."""

@@ -36,7 +36,7 @@ from reneus_mi.geometry.mesh import gltf_from_world, write_glb, write_mesh
 from reneus_mi.geometry.surface import components, field_colors, field_mesh, surface_box
 from reneus_mi.geometry.frame import FieldFrame
 from reneus_mi.render.loading import reneus_integrator
-from reneus_mi.render.seeds import JITTER, step_seed
+from reneus_mi.render.seeds import JITTER, MEDIA, step_seed
 from reneus_mi.render.step_state import StepState
 from reneus_mi.train import checkpoint, losses
 from reneus_mi.train.pixel_sampler import PixelSampler
@@ -315,6 +315,40 @@ class Trainer:
                          inv_s=float(self.field.inv_s()[0]), rays=batch, rays_per_s=batch / elapsed,
                          samples=n_samples, seconds=elapsed)
 
+    def fit_media(self) -> None:
+        """Beyond the paper: before the field's first step, the absorption that the run refines
+        fitted alone to uniformly drawn pixels rendered with the container empty, first their
+        median, then their mode (``RefineConfig.media_steps`` says why); Adam of its own, its
+        rate decaying to 0 (a cosine). A run resumed after its first step has done it."""
+        refine = self.cfg.refine
+        steps = refine.media_steps
+        if self.iteration or not (refine.absorption and steps):
+            return
+        key = self.keys['container.sigma_a']
+        opt = mi.ad.Adam(lr=refine.media_learning_rate)
+        opt[key] = self.opt[key]
+        (first, last), half = refine.media_scale, steps // 2
+        state = self.integrator.state
+        try:
+            for k in range(steps):
+                self.params.update(opt)
+                self.integrator.state = StepState(seed=step_seed(self.cfg.seed, k, MEDIA), field=False)
+                ray, target = self.pixels.uniform(k, refine.media_rays, MEDIA)
+                color = self.integrator.render_rays(self.scene, ray).color
+                if k < half:
+                    loss = losses.color_l1(color, target)
+                else:
+                    scale = first * (last / first) ** ((k - half) / max(steps - 1 - half, 1))
+                    loss = losses.welsch(color, target, scale)
+                dr.backward(loss)
+                opt.set_learning_rate(0.5 * refine.media_learning_rate * (1.0 + math.cos(math.pi * k / steps)))
+                opt.step()
+                opt[key] = dr.clip(opt[key], 0.0, float('inf'))
+        finally:
+            self.integrator.state = state
+        self.opt[key] = opt[key]
+        self.params.update(self.opt)
+
     def _check(self, value: float, it: int) -> None:
         if not np.isfinite(value):
             raise TrainingError(f'step {it}: the loss is {value}; stopped before updating; {self.kept()}')
@@ -404,6 +438,9 @@ class Trainer:
         os.makedirs(self.folder.path, exist_ok=True)
         start, psnrs = time.perf_counter(), []
         timed = self.budget != float('inf')
+        turn = time.perf_counter()
+        self.fit_media()
+        self.elapsed += time.perf_counter() - turn
         bar = tqdm(total=cfg.iterations, initial=self.iteration, disable=not progress or timed,
                    unit='it', dynamic_ncols=True)
         try:
