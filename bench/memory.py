@@ -13,7 +13,6 @@ by the pixels, these are the figures that ``reneus_mi.data.images.LOAD_BYTES_PER
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile

@@ -89,7 +89,7 @@ def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
         # Bad data, an error of Mitsuba's, a full disk: this specimen's, not the batch's.
         return 'failed', _record_failure(folder, one_line(user_message(e) if isinstance(e, RuntimeError)
                                                           else str(e)))
-    except Exception as e:  # noqa: BLE001: a fault of ours must not stop the other specimens
+    except Exception as e:  # noqa: BLE001 (a fault of ours must not stop the other specimens)
         traceback.print_exc()
         return 'failed', _record_failure(folder, f'internal error: {type(e).__name__}: {one_line(str(e))}')
     if 'failure' in result:

@@ -1,6 +1,5 @@
 """The steps' random numbers: each step's batch is a fresh draw, not a lane-shifted copy of
 another step's (PCG32 seeded with unmixed step numbers drew the same pixels every third step)."""
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
