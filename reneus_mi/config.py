@@ -30,7 +30,7 @@ from reneus_mi.geometry.container import CREASE_ANGLE
 from reneus_mi.geometry.surface import POSTPROCESS_MODES
 from reneus_mi.paper import GAMMA
 from reneus_mi.render.ray_samplers import SamplerConfig
-from reneus_mi.render.surroundings import LIGHTS
+from reneus_mi.render.light import LIGHTS
 from reneus_mi.train.pixel_sampler import PixelSamplerConfig
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.validate import check_choice, check_numbers
@@ -65,7 +65,7 @@ class RenderConfig:
     """Append the AOV channels mask, sparsity, nx, ny, nz to rendered images."""
     board_texels: int = 256
     """Texels along the longer side of the grid of gains fitted on the backdrop's emission
-    (:class:`~reneus_mi.render.surroundings.BoardShading`: the light the container and the
+    (:class:`~reneus_mi.render.board_shading.BoardShading`: the light the container and the
     specimen let reach the printed board; 256 on a 240 mm board: about 1 mm; 0: the board
     as the scene gives it, lit evenly)."""
     crease_angle: float = CREASE_ANGLE
@@ -165,7 +165,7 @@ class RefineConfig:
         return self.ior or self.inner_ior or self.absorption or self.pose or self.light != 'none'
 
     def light_model(self) -> str:
-        """The light as the integrator models it (one of :data:`~reneus_mi.render.surroundings.LIGHTS`)."""
+        """The light as the integrator models it (one of :data:`~reneus_mi.render.light.LIGHTS`)."""
         return 'emitter' if self.light == 'none' else self.light
 
 

@@ -1,5 +1,7 @@
 """What surrounds the field, and what the paper takes as known: the container's IOR
-and pose, and the light (beyond the paper: Sec. 5 names them as its limitation).
+and pose, and the light (beyond the paper: Sec. 5 names them as its limitation); the pose
+(:mod:`~reneus_mi.render.pose`), the light (:mod:`~reneus_mi.render.light`) and the board's
+shading (:mod:`~reneus_mi.render.board_shading`) in modules of their own.
 
 The ``reneus`` integrator owns one :class:`Surroundings` per scene, built from
 the scene when it first renders it: the IOR from the container's ``dielectric``
@@ -8,20 +10,6 @@ from the scene's environment emitter. Their values are Dr.Jit arrays that
 ``mi.traverse(scene)`` shows under the names of :meth:`Surroundings.params`
 (``container.eta``, ``container.translation``, ``light.sh``, ...); the trainer
 refines those a run asks for, like the field's own parameters.
-
-Container pose: a world point x of the container as loaded goes to
-
-    x' = R(r) diag(exp(σ)) (x - c) + c + τ
-
-with ``τ`` the translation, ``r`` a rotation vector (axis x angle), ``σ`` the
-per-axis log-scale and ``c`` the centre of the container's bounding box. Rays
-are taken into the container's frame, intersected with the mesh as loaded and
-their hit distance, point and normals mapped back differentiably: the
-derivatives are the interior ones (how refraction moves with the glass).
-
-Light: ``ambient`` is one RGB radiance for every direction (the paper's C_out);
-``sh`` a real spherical-harmonics expansion up to order 2 (9 RGB
-coefficients), for rooms that are not uniform.
 
 Backdrop (beyond the paper): shapes of the scene with an ``area``
 emitter, e.g. the printed board the container stands on. A ray that leaves the container
@@ -45,192 +33,12 @@ import numpy as np
 import trimesh
 
 from reneus_mi.geometry.container import CREASE_ANGLE, scene_of, shading_normals
+from reneus_mi.render.board_shading import SHADING_LR_SCALE, BoardShading, uv_aspect
 from reneus_mi.render.interfaces import Interfaces, interfaces_of
+from reneus_mi.render.light import Light, emitter_radiance
+from reneus_mi.render.pose import ContainerPose
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.param_groups import ParamGroup
-
-#: Light models: the scene's emitter as given, one refinable RGB radiance, order-2 SH.
-LIGHTS = ('emitter', 'ambient', 'sh')
-#: Y_00, the constant spherical harmonic: an SH light's mean radiance is c_00 Y_00.
-_Y00 = 0.282095
-#: Directions that project an emitter onto the SH basis (Fibonacci sphere).
-_PROJECTION_DIRECTIONS = 4096
-#: Learning rate of the board's log-gains relative to the run's: 1e-2 at the fast preset's
-#: 1e-3, a percent of light per step.
-SHADING_LR_SCALE = 10.0
-
-
-def sh_basis(d: mi.Vector3f) -> list:
-    """The 9 real spherical harmonics Y_lm (l <= 2) of unit directions ``d``."""
-    x, y, z = d.x, d.y, d.z
-    return [_Y00 + 0.0 * x,
-            0.488603 * y, 0.488603 * z, 0.488603 * x,
-            1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3.0 * z * z - 1.0),
-            1.092548 * x * z, 0.546274 * (x * x - y * y)]
-
-
-def fibonacci_directions(n: int) -> np.ndarray:
-    """``n`` nearly uniform unit vectors (n,3): equal-weight quadrature on the sphere."""
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    phi = np.pi * (1.0 + 5.0 ** 0.5) * i
-    r = np.sqrt(1.0 - z * z)
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-
-def emitter_radiance(emitter: mi.Emitter, d: mi.Vector3f) -> mi.Color3f:
-    """Radiance of an environment emitter seen along ``d``."""
-    si = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
-    si.wi = -d
-    return emitter.eval(si)
-
-
-class Light:
-    """The light around the container: ``ambient`` (one RGB) or ``sh`` (9 RGB coefficients)."""
-
-    def __init__(self, kind: str, emitter: mi.Emitter):
-        if kind not in LIGHTS[1:]:
-            raise ReneusError(f"light={kind!r}: expected one of {', '.join(LIGHTS)}")
-        self.kind = kind
-        # Initialised by projecting the scene's emitter (exact for a constant one).
-        dirs = fibonacci_directions(_PROJECTION_DIRECTIONS)
-        d = mi.Vector3f(*(mi.Float(dirs[:, i].astype(np.float32)) for i in range(3)))
-        L = np.broadcast_to(np.array(emitter_radiance(emitter, d), np.float64).reshape(3, -1), (3, len(dirs)))
-        if kind == 'ambient':
-            values = L.mean(axis=1)
-        else:
-            Y = np.array([np.broadcast_to(np.array(y, np.float64), (len(dirs),)) for y in sh_basis(d)])
-            values = (4.0 * np.pi / len(dirs)) * (Y @ L.T)    # (9, 3)
-        self.coefficients = mi.Float(values.astype(np.float32).ravel())
-
-    @property
-    def name(self) -> str:
-        return 'light.radiance' if self.kind == 'ambient' else 'light.sh'
-
-    def eval(self, d: mi.Vector3f) -> mi.Color3f:
-        c = self.coefficients
-        if self.kind == 'ambient':
-            return mi.Color3f(*(dr.gather(mi.Float, c, i) for i in range(3)))
-        L = dr.zeros(mi.Color3f, dr.width(d))
-        for k, y in enumerate(sh_basis(d)):
-            L += y * mi.Color3f(*(dr.gather(mi.Float, c, 3 * k + i) for i in range(3)))
-        # Negative radiance is not light: an SH fit can ring below zero.
-        return dr.maximum(L, 0.0)
-
-    def mean(self) -> np.ndarray:
-        """Mean radiance over the sphere (RGB): what a uniform room of the same power shows."""
-        c = np.array(self.coefficients, np.float64).reshape(-1, 3)
-        return c[0] if self.kind == 'ambient' else c[0] * _Y00
-
-
-def _cross_matrix(v) -> mi.Matrix3f:
-    return mi.Matrix3f(0.0, -v.z, v.y,
-                       v.z, 0.0, -v.x,
-                       -v.y, v.x, 0.0)
-
-
-class ContainerPose:
-    """A rigid transform and per-axis scale of the container about ``pivot``."""
-
-    def __init__(self, pivot):
-        self.pivot = mi.ScalarPoint3f(*map(float, pivot))
-        self.translation = dr.zeros(mi.Float, 3)
-        self.rotation = dr.zeros(mi.Float, 3)
-        self.log_scale = dr.zeros(mi.Float, 3)
-
-    def params(self) -> dict:
-        return {'container.translation': self.translation, 'container.rotation': self.rotation,
-                'container.log_scale': self.log_scale}
-
-    @staticmethod
-    def _vector(array) -> mi.Vector3f:
-        return mi.Vector3f(*(dr.gather(mi.Float, array, i) for i in range(3)))
-
-    def _linear(self):
-        """(R, s): the rotation matrix (Rodrigues) and the per-axis scale, differentiable at 0."""
-        r = self._vector(self.rotation)
-        θ2 = dr.squared_norm(r)
-        θ = dr.sqrt(dr.maximum(θ2, 1e-12))
-        small = θ2 < 1e-6
-        a = dr.select(small, 1.0 - θ2 / 6.0, dr.sin(θ) / θ)
-        b = dr.select(small, 0.5 - θ2 / 24.0, (1.0 - dr.cos(θ)) / dr.maximum(θ2, 1e-12))
-        K = _cross_matrix(r)
-        R = dr.identity(mi.Matrix3f) + a * K + b * (K @ K)
-        return R, dr.exp(self._vector(self.log_scale))
-
-    def to_container(self, o: mi.Point3f, d: mi.Vector3f):
-        """World rays in the frame of the container as loaded: (origin, unnormalised direction)."""
-        R, s = self._linear()
-        c = mi.Point3f(self.pivot)
-        Rt = R.T
-        o_c = (Rt @ mi.Vector3f(o - c - self._vector(self.translation))) / s + c
-        return mi.Point3f(o_c), mi.Vector3f((Rt @ d) / s)
-
-    def to_world(self, x: mi.Point3f) -> mi.Point3f:
-        """A point of the container as loaded, where the pose puts it."""
-        R, s = self._linear()
-        c = mi.Point3f(self.pivot)
-        return mi.Point3f(R @ (s * mi.Vector3f(x - c)) + c + self._vector(self.translation))
-
-    def normal_to_world(self, n: mi.Vector3f) -> mi.Vector3f:
-        """A normal of the container as loaded, in the world (inverse transpose of R diag(s))."""
-        R, s = self._linear()
-        return dr.normalize(R @ (n / s))
-
-    def matrix(self) -> np.ndarray:
-        """The 4x4 world transform of the container (NumPy, for writing the refined mesh)."""
-        with dr.suspend_grad():
-            R, s = self._linear()
-            t = np.array(self._vector(self.translation), np.float64).ravel()
-            Rm = np.array(R, np.float64).reshape(3, 3)
-            sm = np.array(s, np.float64).ravel()
-        c = np.array(self.pivot, np.float64)
-        M = np.eye(4)
-        M[:3, :3] = Rm * sm[None, :]
-        M[:3, 3] = c + t - M[:3, :3] @ c
-        return M
-
-
-class BoardShading:
-    """The light that reaches the backdrop, as a gain on its emission: a grid of log-gains over
-    its uv square (bilinear), starting at 1.
-
-    The scene's board is its print lit evenly (the capture measures the print away from the
-    container), but under and around a container the photographs show it shaded: the glass
-    passes (1 - R)^2 of the tent's light, focuses some into caustics, and the specimen casts a
-    shadow. Seen from every view through the glass, a board point's gain is one value, so the
-    photographs fix it; without it the field can only darken the glass itself, and fog fills
-    the block (docs/constants.md). Every backdrop shape shares the grid through its own uv."""
-
-    NAME = 'board.shading'
-
-    def __init__(self, texels: int, aspect: float):
-        #: Texels along u and v: ``texels`` along the longer side, square texels.
-        self.size = (texels, max(1, round(texels / aspect))) if aspect >= 1 else \
-            (max(1, round(texels * aspect)), texels)
-        self.log_gain = dr.zeros(mi.Float, self.size[0] * self.size[1])
-
-    def gain(self, uv: mi.Point2f, active: mi.Bool) -> mi.Float:
-        w, h = self.size
-        x = dr.clip(uv.x * w - 0.5, 0.0, w - 1.0)
-        y = dr.clip(uv.y * h - 0.5, 0.0, h - 1.0)
-        x0, y0 = mi.UInt32(dr.floor(x)), mi.UInt32(dr.floor(y))
-        x1, y1 = dr.minimum(x0 + 1, w - 1), dr.minimum(y0 + 1, h - 1)
-        fx, fy = x - dr.floor(x), y - dr.floor(y)
-        g = 0.0
-        for xi, yi, wt in ((x0, y0, (1 - fx) * (1 - fy)), (x1, y0, fx * (1 - fy)),
-                           (x0, y1, (1 - fx) * fy), (x1, y1, fx * fy)):
-            g += wt * dr.gather(mi.Float, self.log_gain, yi * w + xi, active)
-        return dr.exp(g)
-
-
-def _uv_aspect(shape) -> float:
-    """World length of a shape's u side over its v side (a rectangle's, or a quad mesh's)."""
-    si = shape.eval_parameterization(mi.Point2f([0.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
-    p = np.array(si.p, np.float64).T
-    if not np.all(np.array(si.is_valid())):
-        return 1.0
-    return float(np.linalg.norm(p[1] - p[0]) / max(np.linalg.norm(p[2] - p[0]), 1e-12))
 
 
 class Surroundings:
@@ -264,7 +72,7 @@ class Surroundings:
         self.pose = ContainerPose(pivot) if pose else None
         self.shading = None
         if backdrop and board_texels:
-            self.shading = BoardShading(board_texels, _uv_aspect(backdrop[0]))
+            self.shading = BoardShading(board_texels, uv_aspect(backdrop[0]))
 
     @property
     def conserving(self) -> bool:

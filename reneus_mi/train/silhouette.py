@@ -26,7 +26,7 @@ import trimesh
 from scipy.ndimage import distance_transform_edt
 
 from reneus_mi.data import Dataset
-from reneus_mi.render.surroundings import ContainerPose
+from reneus_mi.render.pose import ContainerPose
 
 #: Points sampled along the container's edges (spread evenly over its edges).
 EDGE_POINTS = 8192

@@ -11,7 +11,8 @@ from reference import (AMBIENT, derivatives_agree, path_reference, path_scene, r
                        reneus_scene)
 from reneus_mi.config import RefineConfig
 from reneus_mi.geometry.shapes import container_mesh, write_container
-from reneus_mi.render.surroundings import ContainerPose, Light, fibonacci_directions, sh_basis
+from reneus_mi.render.light import Light, fibonacci_directions, sh_basis
+from reneus_mi.render.pose import ContainerPose
 
 
 def _constant(value=AMBIENT):

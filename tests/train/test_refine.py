@@ -22,7 +22,7 @@ from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.data.synth import make_dataset, miscalibrated
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.mesh import load_mesh
-from reneus_mi.render.surroundings import ContainerPose
+from reneus_mi.render.pose import ContainerPose
 from reneus_mi.train import runs
 from reneus_mi.train.pixel_sampler import PixelSamplerConfig
 from reneus_mi.train.runs import spec_of_scene
