@@ -9,7 +9,7 @@ import warnings
 
 import cv2
 
-from reneus_mi.capture import export, photos, settings as settings_mod
+from reneus_mi.capture import photos, settings as settings_mod, writer
 from reneus_mi.capture.pipeline import run
 from reneus_mi.utils import guards, interrupt
 from reneus_mi.utils.errors import exit_on_error
@@ -50,7 +50,7 @@ def main(argv=None) -> int:
             s = settings_mod.resolve(args, args.photos, args.settings)
             report = run(s, args.photos, args.output, crop=args.crop_to_coverage)
     if not args.quiet:
-        print(export.table(report))
+        print(writer.table(report))
     print(f"wrote {args.output}: {len(report['views'])} views, container at x={report['container']['pose'][0]:.2f} mm, "
           f"y={report['container']['pose'][1]:.2f} mm, yaw={report['container']['pose'][2]:.2f} deg "
           f"(residual {report['container']['residual_px']:.2f} px), {report['seconds']:.0f} s")

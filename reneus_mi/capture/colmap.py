@@ -25,7 +25,7 @@ import numpy as np
 
 from reneus_mi.capture import photos
 from reneus_mi.capture.crops import CroppedViews, container_windows
-from reneus_mi.capture.export import write_views
+from reneus_mi.capture.writer import write_views
 from reneus_mi.data.checks import check_ior
 from reneus_mi.data.undistort import distortion, output_size, pinhole_K
 from reneus_mi.geometry.container import load_container, mesh_type

@@ -45,9 +45,10 @@ _GREY16 = ('I;16', 'I;16B', 'I;16L')
 #: EXIF orientations that swap width and height, and the turn that shows each as intended.
 _SWAPPING = {5: Image.Transpose.TRANSPOSE, 6: Image.Transpose.ROTATE_270, 7: Image.Transpose.TRANSVERSE,
              8: Image.Transpose.ROTATE_90}
-#: Bytes per pixel of a photograph while one is decoded: the file, the RGB array, the grey copy
+#: Bytes per pixel of a photograph while the capture takes it in (not the dataset loader's
+#: DECODE_BYTES_PER_PIXEL): the file, the RGB array, the grey copy
 #: the board is found in, the reduction's working copy, the rows :func:`colour_step` reads.
-DECODE_BYTES_PER_PIXEL = 16
+INTAKE_BYTES_PER_PIXEL = 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -314,6 +315,6 @@ def check_memory(n: int, size: tuple[int, int], out_size: tuple[int, int], *, ke
     """
     width, height = size
     w, h = out_size
-    need = n * (kept[0] * kept[1] * 3 + w * h * 3 * 4 * 2) + workers * width * height * DECODE_BYTES_PER_PIXEL
+    need = n * (kept[0] * kept[1] * 3 + w * h * 3 * 4 * 2) + workers * width * height * INTAKE_BYTES_PER_PIXEL
     limits.check_memory(need, f'{n} photographs of {width}x{height} scaled to {w}x{h} '
                               '(lower it with --max-size N or --downscale F)')

@@ -16,7 +16,7 @@ capture folders.
    the container's place from the first one.
 6. Measure each photograph's exposure, C_out and the print's brightness
    (:mod:`~reneus_mi.capture.exposure`) and normalise the exposures.
-7. Write an overlay per photograph, then the dataset (:mod:`~reneus_mi.capture.export`;
+7. Write an overlay per photograph, then the dataset (:mod:`~reneus_mi.capture.writer`;
    its ``transforms.json`` last: a folder that has one holds the whole dataset): of each view
    the window around the container, undistorted at the dataset's scale from the photograph
    (:mod:`~reneus_mi.capture.crops`: decoded again where the working copy is smaller).
@@ -34,7 +34,7 @@ import numpy as np
 from tqdm import tqdm
 
 from reneus_mi.capture import board as board_mod
-from reneus_mi.capture import export, photos, settings as settings_mod
+from reneus_mi.capture import photos, settings as settings_mod, writer
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.crops import WORK_MAX_SIZE, CroppedViews, container_windows
 from reneus_mi.capture.calibrate import EXTRAPOLATION_WARN_PX, Calibration, calibrate, coverage, crop_to_coverage
@@ -151,7 +151,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     """The whole capture (see the module docstring); returns what the report holds. ``crop``:
     the dataset's images cropped to the part of the frame the board covered."""
     start = time.perf_counter()
-    out = guards.check_output_dir(out, inputs=[photos_dir], allow=export.OUTPUTS, what='dataset folder')
+    out = guards.check_output_dir(out, inputs=[photos_dir], allow=writer.OUTPUTS, what='dataset folder')
     board = Board.from_settings(s)
     shots = photos.orientations(photos.list_photos(photos_dir))
     size = shots[0].size
@@ -176,7 +176,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     except ReneusError as e:
         # The user must see why: the overlays, with what each photograph showed.
         reg_failed = getattr(e, 'registration', None)
-        export.write_overlays(out, images, K_work, c2w, board, cal, s, measured=getattr(e, 'measured', None),
+        writer.write_overlays(out, images, K_work, c2w, board, cal, s, measured=getattr(e, 'measured', None),
                                pose=reg_failed.pose if reg_failed else None)
         raise ReneusError(f'{e} (overlays in {os.path.join(out, "overlays")})') from None
     given = s
@@ -215,7 +215,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     light = measure(images, valid, K_work, c2w, board, reg.measured, names)
     _warn_uncovered(names, valid, K_work, c2w, s, reg.pose)
     # The overlays first: a transforms.json, written last, says that the dataset is whole.
-    export.write_overlays(out, images, K_work, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
+    writer.write_overlays(out, images, K_work, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
                            residuals=reg.view_residuals)
     del images, valid
     hull = np.asarray(board_mesh(s.container, s.size_mm, reg.pose, edge=s.edge_mm).convex_hull.vertices)
@@ -228,7 +228,7 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
         rgb = reduced[name] if work == 1.0 else photos.decode(by_name[name])
         return rgb, np.diag([rgb.shape[1] / cal.width, rgb.shape[0] / cal.height, 1.0]) @ cal.K, cal.dist
     views = CroppedViews(windows, K_out, lens_of, light.factors)
-    report = export.write(out, s, board, cal, K_out, (width, height), views, reg, light, left_out, cover,
+    report = writer.write(out, s, board, cal, K_out, (width, height), views, reg, light, left_out, cover,
                           photos.camera_exif(shots[0].path), given=given)
     report['seconds'] = time.perf_counter() - start
     return report

@@ -39,6 +39,7 @@ from reneus_mi.data.scene_xml import sensor_dict
 from reneus_mi.data.synth import write_object
 from reneus_mi.geometry.container import shading_mesh
 from reneus_mi.geometry.shapes import write_container
+from reneus_mi.geometry.mesh import mitsuba_mesh
 from reneus_mi.paper import GAMMA
 from reneus_mi.utils import guards
 from reneus_mi.utils.io import atomic_path, atomic_write_text
@@ -158,14 +159,8 @@ def board_shape(rig: Rig) -> mi.Mesh:
     props = mi.Properties()
     props['bsdf'] = mi.load_dict({'type': 'diffuse', 'reflectance': {
         'type': 'bitmap', 'bitmap': mi.Bitmap(albedo[..., None]), 'raw': True}})
-    shape = mi.Mesh('board', 4, 2, has_vertex_texcoords=True, props=props)
-    params = mi.traverse(shape)
-    params['vertex_positions'] = mi.Float(v.ravel())
     # Wound so that the face normal is -z, towards the cameras.
-    params['faces'] = mi.UInt32(np.array([0, 2, 1, 0, 3, 2], np.uint32))
-    params['vertex_texcoords'] = mi.Float(uv.ravel())
-    params.update()
-    return shape
+    return mitsuba_mesh(v, [[0, 2, 1], [0, 3, 2]], 'board', props, texcoords=uv)
 
 
 def specimen_mesh(rig: Rig) -> trimesh.Trimesh:

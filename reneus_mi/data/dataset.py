@@ -20,7 +20,7 @@ neither format has a field for are stored under the same JSON keys in both:
   ``dielectric`` and ``homogeneous`` medium state them: the first is ``mesh_outside`` (with
   ``IOR`` its int_ior, ``absorption`` its medium's), each ``ext_ior`` the ``int_ior`` of the one
   around it (1 for the first), ``absorption`` optional;
-- ``"capture"``: what ``reneus_mi.capture`` knows of the world (:mod:`reneus_mi.capture.export`):
+- ``"capture"``: what ``reneus_mi.capture`` knows of the world (:mod:`reneus_mi.capture.writer`):
   ``units`` and ``frame`` of the coordinates, and ``board``, the printed board the container
   stands on (:class:`PrintedBoard`), which the scene writer puts into the scene.
 """

@@ -110,17 +110,20 @@ def signed_volume(vertices, faces) -> float:
 
 
 def mitsuba_mesh(vertices, faces, name: str = 'container', props: mi.Properties | None = None,
-                 normals=None) -> mi.Mesh:
+                 normals=None, texcoords=None) -> mi.Mesh:
     """Triangles (an (n, 3) array of vertices, one of faces) as a Mitsuba mesh: ``props`` its
-    BSDF and media; ``normals`` None (none), an (n, 3) array, or 'recompute' (Mitsuba's own)."""
+    BSDF and media; ``normals`` None (none), an (n, 3) array, or 'recompute' (Mitsuba's own);
+    ``texcoords`` None or an (n, 2) array of uv."""
     has_normals = normals is not None
     shape = mi.Mesh(name, len(vertices), len(faces), has_vertex_normals=has_normals,
-                    **({} if props is None else {'props': props}))
+                    has_vertex_texcoords=texcoords is not None, **({} if props is None else {'props': props}))
     params = mi.traverse(shape)
     params['vertex_positions'] = mi.Float(np.ravel(vertices).astype(np.float32))
     params['faces'] = mi.UInt32(np.ravel(faces).astype(np.uint32))
     if has_normals and not isinstance(normals, str):
         params['vertex_normals'] = mi.Float(np.ravel(normals).astype(np.float32))
+    if texcoords is not None:
+        params['vertex_texcoords'] = mi.Float(np.ravel(texcoords).astype(np.float32))
     params.update()
     if isinstance(normals, str):
         shape.recompute_vertex_normals()

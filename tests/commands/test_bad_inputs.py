@@ -1169,7 +1169,7 @@ def test_ctrl_c_while_capture_writes(shots, tmp_path):
     # At 320 px the outline of the right container lies 2.1 px from the photographs, on the
     # edge of the not-found limit: this test is about the interrupt, so the photographs are larger.
     args = [photo_copies(shots, tmp_path / 'photos', 8), '-o', out, *CAPTURE, '--max-size', 480, '--quiet']
-    proc = start('capture', *args, tmp_path=tmp_path, pause=('reneus_mi.capture.export:write_overlays', SPIN))
+    proc = start('capture', *args, tmp_path=tmp_path, pause=('reneus_mi.capture.writer:write_overlays', SPIN))
     wait_for(proc, (tmp_path / 'paused').exists)
     assert ctrl_c(proc) == (f'interrupted: {out} holds no dataset yet (no transforms.json): '
                             'the same command replaces what it holds')
