@@ -267,12 +267,17 @@ def inside(points, container: trimesh.Trimesh) -> np.ndarray:
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
 
-    scene = mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container.vertices, container.faces)})
+    return scene_inside(mi.load_dict({'type': 'scene', 'container': mitsuba_mesh(container.vertices,
+                                                                             container.faces)}), points)
 
+
+def scene_inside(scene: mi.Scene, points: np.ndarray) -> np.ndarray:
+    """Boolean mask of the ``(N, 3)`` ``points`` inside the closed surfaces of a Mitsuba
+    ``scene``: an odd number of crossings along a ray, the majority over three directions."""
     # Every crossing is a distinct face, so a ray that has not left the
     # container after this many hits is stuck re-hitting one spot.
-    max_hits = len(container.faces) + 1
-    origin = mi.Point3f(*(points.T.astype(np.float32)))
+    max_hits = sum(shape.face_count() for shape in scene.shapes()) + 1
+    origin = mi.Point3f(*(np.asarray(points, np.float64).T.astype(np.float32)))
     votes = mi.UInt32(0)
     for direction in _RAY_DIRECTIONS:
         votes += _parity(scene, origin, mi.Vector3f(*direction), max_hits)
@@ -294,6 +299,12 @@ def _parity(scene, origin, direction, max_hits):
     return hits & 1
 
 
+def is_container(shape: mi.Shape) -> bool:
+    """Whether a scene's shape is (part of) the container: one with Mitsuba's ``dielectric``."""
+    bsdf = shape.bsdf()
+    return bsdf is not None and bsdf.class_name() == 'SmoothDielectric'
+
+
 def check_scene_containers(scene: mi.Scene, where: str) -> None:
     """Every dielectric mesh of ``scene`` (the container) must be closed, face outward,
     and be made of parts that do not overlap, or lie one inside the other as interfaces of
@@ -305,7 +316,7 @@ def check_scene_containers(scene: mi.Scene, where: str) -> None:
     """
     parts, etas, names = [], [], []
     for shape in scene.shapes():
-        if not isinstance(shape, mi.Mesh) or not str(shape.bsdf()).startswith('SmoothDielectric'):
+        if not isinstance(shape, mi.Mesh) or not is_container(shape):
             continue
         vertices = np.array(shape.vertex_positions_buffer()).reshape(-1, 3)
         faces = np.array(shape.faces_buffer()).reshape(-1, 3)

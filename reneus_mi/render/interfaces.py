@@ -24,13 +24,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.geometry.container import absorbing_medium, medium_absorption, scene_of
+from reneus_mi.geometry.container import absorbing_medium, medium_absorption, scene_inside, scene_of
 from reneus_mi.utils.errors import ReneusError
-
-#: Crossings followed to tell inside from outside; a closed container has a handful.
-_MAX_CROSSINGS = 64
-#: A direction no container face is parallel to, for the crossing counts.
-_PROBE = np.array([0.3147, 0.4721, 0.8238]) / np.linalg.norm([0.3147, 0.4721, 0.8238])
 
 
 def _spokes() -> np.ndarray:
@@ -92,7 +87,7 @@ def interfaces_of(shapes: list) -> Interfaces:
     names = [', '.join(f"'{shapes[k].id()}'" for k in m) for m in members]
     # Interface b lies inside interface a when points on b are inside a; some but not all: they cut.
     points = [_points_on(scene, name) for scene, name in zip(scenes, names)]
-    inside = [[a != b and _inside(scenes[a], points[b]) for a in range(len(scenes))] for b in range(len(scenes))]
+    inside = [[a != b and scene_inside(scenes[a], points[b]) for a in range(len(scenes))] for b in range(len(scenes))]
     for b, row in enumerate(inside):
         for a, within in enumerate(row):
             if a != b and within.any() and not within.all():
@@ -120,24 +115,6 @@ def interfaces_of(shapes: list) -> Interfaces:
                                   "shape around it)")
     return Interfaces(shapes=tuple(tuple(members[g]) for g in order), outer=tuple(outer), ior=tuple(ior),
                       sigma_a=tuple(sigma_a))
-
-
-def _inside(scene: mi.Scene, points: np.ndarray) -> np.ndarray:
-    """Whether each point lies inside the closed surface of ``scene``: an odd number of
-    crossings along a ray."""
-    n = len(points)
-    o = mi.Point3f(*(mi.Float(points[:, i].astype(np.float32)) for i in range(3)))
-    d = mi.Vector3f(*(dr.full(mi.Float, float(c), n) for c in _PROBE))
-    count = dr.zeros(mi.UInt32, n)
-    active = dr.full(mi.Bool, True, n)
-    for _ in range(_MAX_CROSSINGS):
-        si = scene.ray_intersect(mi.Ray3f(o, d), active)
-        active &= si.is_valid()
-        if not dr.any(active):
-            break
-        count += dr.select(active, 1, 0)
-        o = dr.select(active, si.spawn_ray(d).o, o)
-    return (np.array(count) % 2) == 1
 
 
 def _points_on(scene: mi.Scene, name: str) -> np.ndarray:

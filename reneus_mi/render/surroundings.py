@@ -32,7 +32,7 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.geometry.container import CREASE_ANGLE, scene_of, shading_normals
+from reneus_mi.geometry.container import CREASE_ANGLE, is_container, scene_of, shading_normals
 from reneus_mi.render.board_shading import SHADING_LR_SCALE, BoardShading, uv_aspect
 from reneus_mi.render.interfaces import Interfaces, interfaces_of
 from reneus_mi.render.light import Light, emitter_radiance
@@ -244,8 +244,7 @@ def scene_parts(scene: mi.Scene) -> tuple[list, list, list]:
     emitters), the others (an error where the container matters)."""
     container, backdrop, other = [], [], []
     for shape in scene.shapes():
-        bsdf = shape.bsdf()
-        if bsdf is not None and bsdf.class_name() == 'SmoothDielectric':
+        if is_container(shape):
             container.append(shape)
         elif shape.is_emitter():
             backdrop.append(shape)
