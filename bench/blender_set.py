@@ -871,6 +871,7 @@ def degrade(src: str, dst: str, *, seed: int, noise: float, read_noise: float, e
 
 
 def main(argv=None) -> None:
+    global AMBER
     parser = argparse.ArgumentParser(
         prog='bench/blender_set.py',
         description='Render the second-renderer test set with Blender Cycles (run with the bpy '
@@ -884,6 +885,8 @@ def main(argv=None) -> None:
     parser.add_argument('--containers', nargs='*', choices=CONTAINERS, default=[],
                         help='also photograph each object in these containers of collections: a glass case '
                              '(walls around air), a jar of tinted ethanol, an amber block')
+    parser.add_argument('--amber', type=float, nargs=3, metavar=('R', 'G', 'B'), default=AMBER,
+                        help="the amber block's absorption per unit (default: %(default)s)")
     parser.add_argument('--degrade', nargs=2, metavar=('SRC', 'DST'),
                         help='write a camera-like copy of the dataset SRC to the new folder DST')
     parser.add_argument('--seed', type=int, default=0, help='--degrade: random numbers')
@@ -893,6 +896,7 @@ def main(argv=None) -> None:
     parser.add_argument('--exposure', type=float, default=0.1, help='--degrade: exposure drift, +- fraction')
     parser.add_argument('--jpeg-quality', type=int, default=85)
     args = parser.parse_args(argv)
+    AMBER = tuple(args.amber)
     if args.degrade:
         degrade(*args.degrade, seed=args.seed, noise=args.noise, read_noise=args.read_noise,
                 exposure=args.exposure, quality=args.jpeg_quality)

@@ -274,9 +274,9 @@ def inside(points, container: trimesh.Trimesh) -> np.ndarray:
 def scene_inside(scene: mi.Scene, points: np.ndarray) -> np.ndarray:
     """Boolean mask of the ``(N, 3)`` ``points`` inside the closed surfaces of a Mitsuba
     ``scene``: an odd number of crossings along a ray, the majority over three directions."""
-    # Every crossing is a distinct face, so a ray that has not left the
-    # container after this many hits is stuck re-hitting one spot.
-    max_hits = sum(shape.face_count() for shape in scene.shapes()) + 1
+    # Every crossing is a distinct face (an analytic shape has two), so a ray that has not
+    # left the container after this many hits is stuck re-hitting one spot.
+    max_hits = sum(shape.face_count() if isinstance(shape, mi.Mesh) else 2 for shape in scene.shapes()) + 1
     origin = mi.Point3f(*(np.asarray(points, np.float64).T.astype(np.float32)))
     votes = mi.UInt32(0)
     for direction in _RAY_DIRECTIONS:
