@@ -58,63 +58,12 @@ class RayTreeResult:
 
 class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     r"""
-    ReNeuS's hybrid renderer: ray tracing through a transparent container,
-    NeuS volume rendering inside it.
-
-    The scene's shapes with a smooth ``dielectric`` BSDF are together the
-    container: the paper's solid block, or nested closed interfaces (a display
-    case's outer and inner faces, a jar's glass and its liquid), each bending light
-    by its BSDF's η, the ratio of the IORs on its two sides
-    (:mod:`reneus_mi.render.interfaces`). Every ray knows the region it is in; the
-    field lives in the innermost. A region's ``interior`` medium, where its
-    interface has one (Mitsuba's ``homogeneous`` with albedo 0: amber, a tinted
-    liquid), absorbs along every segment in it by Beer-Lambert's law: the field's
-    light at distance t into a segment and the light from beyond a segment of
-    length t both arrive times exp(-σ_a t), σ_a its ``sigma_t`` (RGB) times its
-    ``scale``, as ``volpath`` renders it. A mesh bends light by
-    shading normals that follow its geometry, however its file was written: flat
-    across edges sharper than ``crease_angle``, smooth elsewhere (the file's stored
-    normals where it has them; :mod:`reneus_mi.geometry.container`). The scene's
-    environment emitter (usually ``constant``, 0.8 in the paper) is the ambient
-    light C_out. Shapes with an ``area`` emitter are the backdrop (beyond the
-    paper: the printed board the container stands on, which ``python -m
-    reneus_mi.scene`` writes for a capture): a ray that leaves the container and
-    meets one takes its emission instead of C_out, as Mitsuba's ``path`` sees it
-    (give a backdrop a black BSDF for ``path`` to agree; reneus never reflects off
-    it). Any other shape is an error. Inside the container lives a field
-    (:mod:`reneus_mi.fields`): an SDF with a radiance, rendered with NeuS's
-    unbiased weights.
-
-    Each camera ray is traced: at every interface hit both the reflected and
-    the refracted ray are followed, weighted by the unpolarised Fresnel
-    reflectance R and by 1 - R (total internal reflection gives R = 1). A ray
-    segment in the field's region is volume rendered; its transmittance T_ℓ
-    multiplies whatever lies beyond it. A ray that leaves takes the backdrop it
-    meets, or the ambient.
-
-    **Depth.** ``max_depth`` = D_re counts interface events. A ray created by
-    the D-th event is still followed to the next surface: if it escapes it
-    takes the backdrop or the ambient, if it is inside its segment is volume rendered. What
-    lies beyond the surface that ends it is ``terminal``, attenuated by the
-    segment's transmittance: with ``trace`` (the default) the light the empty
-    container brings there (:meth:`_trace_beyond`: its further reflections and
-    refractions to the backdrop or the ambient, the field not sampled; exact for
-    a convex container without the field beyond the tree); with ``ambient`` the
-    ambient radiance (or the backdrop) seen straight on from the surface, which
-    is the same in uniform light but wrong where the glass reflects totally
-    toward a board; with ``black`` nothing, which is what Mitsuba's ``path``
-    integrator computes with ``max_depth = D_re + 1`` (the field then has to
-    explain the light of the dropped paths, and paints fake walls to do so).
-    D_re = 0 renders the camera ray's own segment only.
-
-    **Radiance units.** As in the paper, the field's colour is seen through an
-    interface with weight 1 - R only: the η² radiance scaling at a refractive
-    interface is folded into the field's colour (a path tracer sees an emitter
-    of radiance c·η² inside the glass as this integrator sees colour c).
-
-    **Settings.** Every property is a field of :class:`reneus_mi.config.ModelConfig`
-    under the same name: ``preset`` picks a named configuration
-    (:mod:`reneus_mi.presets`), and the properties given override it.
+    ReNeuS's hybrid renderer (Sec. 3.3): ray tracing through a transparent container (the
+    scene's shapes with a smooth ``dielectric`` BSDF), NeuS volume rendering of a field inside
+    it. At every interface both the reflected and the refracted ray are followed, weighted by
+    Fresnel's R and 1 - R, up to ``max_depth`` interface events; a ray that leaves takes the
+    backdrop it meets (shapes with an ``area`` emitter) or the environment emitter's light.
+    The model in full, the depth and the radiance units: ``docs/integrator.md``.
 
     .. pluginparameters::
 
@@ -153,6 +102,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
        - |string|
        - Folder of the photographs and cameras that ``reneus_mi.optimize``
          fits the field to. Not used for rendering. (Default: none)
+
+    **Settings.** Every property is a field of :class:`reneus_mi.config.ModelConfig`
+    under the same name: ``preset`` picks a named configuration
+    (:mod:`reneus_mi.presets`), and the properties given override it.
 
     The field's parameters appear in ``mi.traverse(scene)`` under the
     integrator's id (e.g. ``field.sdf.weights``). They are the field's own
@@ -337,9 +290,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             if bounce == TRACE_BOUNCES:
                 return
             go = alive & ~stop
-            R, d_r, d_t = interface(rays.d, hit.n_s, surroundings.eta(hit.group))
-            entering = dr.dot(rays.d, hit.n) < 0.0
-            region_t = surroundings.beyond(hit.group, entering)
+            R, d_r, d_t, region_t = self._split(surroundings, rays, hit)
             # The branch that reaches the world ends there (from inside the refracted one, from
             # outside the reflected one); at an inner interface neither does, and one of the two
             # goes on, chosen with probability R (their weights' mean unchanged).
@@ -420,12 +371,18 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         """``n`` uniform numbers of the step's seed and ``salt``: the same for the same step."""
         return mi.PCG32(n, initstate=opaque_seed(salted_seed(self.state.seed or 0, salt))).next_float32()
 
+    @staticmethod
+    def _split(surroundings, rays, hit):
+        """At the rays' hits: Fresnel's R, the reflected and refracted directions, and the region
+        the refracted ray goes into. Smooth containers bend light by their shading normals, as
+        Mitsuba's dielectric does."""
+        R, d_r, d_t = interface(rays.d, hit.n_s, surroundings.eta(hit.group))
+        return R, d_r, d_t, surroundings.beyond(hit.group, dr.dot(rays.d, hit.n) < 0.0)
+
     def _interface(self, surroundings, rays, hit, T, reflect: bool, depth: int = 0):
         """Spawn the next generation: reflected (β·T·R) and refracted (β·T·(1-R)) rays, each in
         the region it goes into."""
-        # Smooth containers bend light by their shading normals, as Mitsuba's dielectric does.
-        R, d_r, d_t = interface(rays.d, hit.n_s, surroundings.eta(hit.group))
-        region_t = surroundings.beyond(hit.group, dr.dot(rays.d, hit.n) < 0.0)
+        R, d_r, d_t, region_t = self._split(surroundings, rays, hit)
         β = rays.β * T
         if reflect:
             β_r, β_t = β * R, β * (1.0 - R)
