@@ -68,7 +68,7 @@ def run(args) -> str:
     # The demo's photographs go beside the run folder: no run ever writes where its inputs are.
     scene = (lambda: demo_scene(os.path.abspath(out).rstrip(os.sep) + '_data')) if args.demo else args.scene
     prepared = runs.prepare(out, scene, args.data, train=cli.given_arguments(TrainConfig, args),
-                            settings=args.settings, resume=args.resume)
+                            settings=args.settings, start='resume' if args.resume else 'new')
     result = prepared.train(progress=not args.quiet)
     if 'failure' in result:
         raise ReneusError(f"{result['failure']}; {out}: {folder.state().advice()}")

@@ -83,7 +83,7 @@ def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
             os.unlink(stale)
     shutil.rmtree(files.package, ignore_errors=True)
     try:
-        run = prepare(specimen, files, folder)
+        run = specimen_run(specimen, files, folder)
         result = run.train(progress=False)
     except (ReneusError, RuntimeError, OSError) as e:
         # Bad data, an error of Mitsuba's, a full disk: this specimen's, not the batch's.
@@ -99,7 +99,7 @@ def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
     return 'finished', ''
 
 
-def prepare(specimen, files, folder):
+def specimen_run(specimen, files, folder):
     """The specimen's :class:`~reneus_mi.train.runs.Run`: a capture captured into
     ``files.dataset`` (once), the scene XML written, the preset and settings applied; from its
     checkpoint where the folder holds one."""
@@ -121,7 +121,7 @@ def prepare(specimen, files, folder):
     if specimen.ior is not None and specimen.kind == 'dataset':
         ds = dataclasses.replace(ds, ior=specimen.ior)
     write_scene(ds, files.scene, preset=specimen.preset, overwrite=True)
-    return runs.prepare(folder.path, files.scene, data, settings=specimen.settings, resume=None,
+    return runs.prepare(folder.path, files.scene, data, settings=specimen.settings, start='continue',
                         remedy=f'--redo {specimen.name} to start it over')
 
 

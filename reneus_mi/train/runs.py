@@ -116,25 +116,29 @@ class Run:
         return result
 
 
-def prepare(out: str, scene: str | Callable[[], str] | None = None, data: str | None = None, *,
-            train: dict | None = None, settings: Sequence[str] = (), resume: bool | None = False,
-            remedy: str = 'choose another folder') -> Run:
-    """The run in folder ``out``: of ``scene`` (with its integrator's ``dataset``, or ``data``),
-    or with ``resume`` the one the folder records (``data``: its dataset, moved).
+#: How :func:`prepare` takes its folder: ``new``, a run that starts there (the folder must take
+#: one); ``resume``, the run the folder records (its config.json), from its checkpoint;
+#: ``continue``, the folder as it is (a batch's specimen): the run of the scene given, from the
+#: folder's checkpoint where it has one.
+STARTS = ('new', 'resume', 'continue')
 
-    ``train`` sets training fields by name and ``settings`` any setting (``PATH=VALUE``), in
-    that order, over the integrator's model and its preset's training (or the record's). ``scene`` may be a
-    function that writes the scene (the demo), called once the folder is known to take the run.
-    ``resume=None`` takes the folder as it is (a batch's specimen): the run of ``scene``
-    continues the folder's checkpoint where it has one, and a folder that records a run of
-    other settings is an error (its message ends with ``remedy``).
-    """
+
+def prepare(out: str, scene: str | Callable[[], str] | None = None, data: str | None = None, *,
+            train: dict | None = None, settings: Sequence[str] = (), start: str = 'new',
+            remedy: str = 'choose another folder') -> Run:
+    """The run in folder ``out``, started as ``start`` says (:data:`STARTS`): of ``scene``
+    (with its integrator's ``dataset``, or ``data``), or the one the folder records (``data``:
+    its dataset, moved). ``train`` sets training fields by name and ``settings`` any setting
+    (``PATH=VALUE``), in that order, over the integrator's model and its preset's training (or
+    the record's). ``scene`` may be a function that writes the scene (the demo), called once
+    the folder is known to take the run. A folder that records a run of other settings than
+    ``continue``'s is an error (its message ends with ``remedy``)."""
+    if start not in STARTS:
+        raise ValueError(f'start={start!r}: expected one of {STARTS}')
     folder = RunFolder(out)
-    as_found = resume is None
-    if as_found:
-        resume = os.path.isfile(folder.checkpoint)
+    resume = start == 'resume' or (start == 'continue' and os.path.isfile(folder.checkpoint))
     folder.check_start(resume)
-    if resume and not as_found:
+    if start == 'resume':
         spec = read_spec(out)
         if scene is not None:
             raise ReneusError(f'{out}: --resume continues the run recorded in its config.json '
@@ -146,7 +150,7 @@ def prepare(out: str, scene: str | Callable[[], str] | None = None, data: str | 
         scene = scene()
     loaded = load_scene(scene)
     spec = _spec(scene, loaded, data, train, settings)
-    if as_found and os.path.isfile(folder.config):
+    if start == 'continue' and os.path.isfile(folder.config):
         recorded = read_spec(out)
         if not recorded.same_run(spec):
             raise ReneusError(f'{out}: holds a run with other settings; expected the same settings, '

@@ -48,7 +48,7 @@ def test_resume_on_a_moved_dataset_is_checked(scene_xml, tmp_path):
     runs.open_spec(tiny_spec(scene_xml, iterations=2), str(out)).train(progress=False)
     moved = tmp_path / 'moved'
     shutil.copytree(data, moved)
-    assert runs.prepare(str(out), data=str(moved), resume=True).spec.data == str(moved)
+    assert runs.prepare(str(out), data=str(moved), start='resume').spec.data == str(moved)
     other = tmp_path / 'other'
     shutil.copytree(data, other)
     meta = json.loads((other / 'transforms.json').read_text())
