@@ -13,7 +13,7 @@ Python of a venv that has the ``bpy`` wheel, not the project's::
         'opencv-contrib-python-headless<4.12'
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH [--specimen ant|ant_thin|beetle|shell]
         [--block small|large] [--container box|jar] [--size 960x640] [--board-factor K] [--views 48] [--spp N] [--seed S]
-        [--ior 1.45] [--preview]
+        [--ior 1.45] [--edge-mm R] [--preview]
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH --check
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH --reduce-from SRC_PHOTOS SRC_TRUTH \
         --size 960x640
@@ -85,6 +85,8 @@ BLOCKS = {
 JARS = {'small': (40.0, 40.0, 30.0), 'large': (60.0, 60.0, 40.0)}
 JAR_WALL_MM = 2.0
 LIQUID_IOR = 1.36
+#: Facets of a quarter circle of a rounded block's edge (``--edge-mm``).
+EDGE_SEGMENTS = 12
 #: The capture's name of each container's shape.
 SHAPES = {'box': 'box', 'jar': 'cylinder'}
 #: Sides of the jar's cylinder (Blender's primitive and the truth's mesh alike).
@@ -477,10 +479,23 @@ def make_container(rig: dict) -> list:
         for node in ob.data.materials[0].node_tree.nodes:
             if node.bl_idname == 'ShaderNodeBsdfGlass':
                 node.inputs['IOR'].default_value = rig['ior']
+        if rig['edge_mm']:
+            round_edges(ob, rig['edge_mm'])
         obs = [ob]
     for ob in obs:
         ob.location = (rig['pose'][0], -rig['pose'][1], 0.5 * H)
     return obs
+
+
+def round_edges(ob, radius: float) -> None:
+    """A polished block: its edges and corners rounded to ``radius`` (EDGE_SEGMENTS facets a
+    quarter circle, shaded smooth), its faces flat to the rounding (hardened normals)."""
+    for p in ob.data.polygons:
+        p.use_smooth = True
+    mod = ob.modifiers.new('round', 'BEVEL')
+    mod.width, mod.segments, mod.limit_method, mod.harden_normals = radius, EDGE_SEGMENTS, 'NONE', True
+    bpy.context.view_layer.objects.active = ob
+    bpy.ops.object.modifier_apply(modifier='round')
 
 
 def make_camera(sc, K_r: np.ndarray, size: tuple[int, int]) -> bpy.types.Object:
@@ -600,7 +615,7 @@ def make_rig(args) -> dict:
     K = intrinsics(width, height)
     jar = dict(size_mm=JARS[args.block], wall_mm=JAR_WALL_MM, liquid_ior=LIQUID_IOR) if args.container == 'jar' else {}
     return dict(block=args.block, **{**block, **jar}, dictionary=DICTIONARY, paper_margin_mm=PAPER_MARGIN_MM,
-                container=args.container, ior=args.ior, pose=[round(float(v), 3) for v in pose],
+                container=args.container, ior=args.ior, edge_mm=args.edge_mm, pose=[round(float(v), 3) for v in pose],
                 specimen=args.specimen, width=width, height=height, K=K, distortion=list(DISTORTION),
                 views=args.views, distance_mm=float(K[0, 0] * max(board_w, board_h) / (BOARD_SPAN * width)),
                 board_factor=args.board_factor,
@@ -833,6 +848,9 @@ def main(argv=None) -> None:
     parser.add_argument('--views', type=int, default=48)
     parser.add_argument('--spp', type=int, default=SPP, help='Cycles samples per pixel, at most (adaptive)')
     parser.add_argument('--ior', type=float, default=IOR)
+    parser.add_argument('--edge-mm', type=float, default=0.0, metavar='R',
+                        help="the block's edges and corners rounded to radius R mm (polished), while capture.json "
+                             'states a sharp box, as a curator who has not measured them would (default: sharp)')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--preview', action='store_true', help=f'render only {PREVIEW_VIEWS} of the views')
     parser.add_argument('--check', action='store_true',

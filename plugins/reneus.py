@@ -14,7 +14,7 @@ from reneus_mi.geometry.frame import FieldFrame
 from reneus_mi.render.optics import interface
 from reneus_mi.render.properties import read_properties
 from reneus_mi.render.seeds import opaque_seed, salted_seed
-from reneus_mi.render.step_state import StepState
+from reneus_mi.render.step_state import StepState, refined
 from reneus_mi.render.surroundings import Surroundings, scene_parts, shapes_bbox, surroundings_of
 from reneus_mi.render.volume_rendering import volume_render
 from reneus_mi.utils.errors import ReneusError
@@ -248,31 +248,32 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         for depth in range(depth_limit + 1):
             if rays.size == 0:
                 return
-            hit = self._intersect(surroundings, rays)
+            lanes = self._refining(rays)
+            hit = self._intersect(surroundings, rays, lanes)
             if depth == 0:
                 acc.mark_container(rays.camera, hit.valid)
             leaving = hit.valid & (dr.dot(rays.d, hit.n) > 0)
-            acc.add(rays.camera, rays.β * outside(rays.o, rays.d, ~hit.valid), ~hit.valid)
+            acc.add(rays.camera, rays.β * outside(rays.o, rays.d, ~hit.valid, lanes), ~hit.valid)
             in_field = hit.valid & (rays.region == field) & self.state.field
             T = self._render_inside(rays, hit.t, in_field, acc, jitter, σ_field)
             if surroundings.sigma_a is not None:
                 # Segments in the other regions only absorb.
-                T = dr.select(in_field, T, surroundings.attenuation(rays.region, hit.t))
+                T = dr.select(in_field, T, surroundings.attenuation(rays.region, hit.t, lanes))
             if plus and depth == 1:
                 # NeuS+: the light beyond the segment arrives straight, unrefracted.
-                acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, leaving), leaving)
+                acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, leaving, lanes), leaving)
                 return
             if depth == depth_limit:
                 if render.terminal == 'trace' and not surroundings.conserving:
-                    self._trace_beyond(surroundings, rays, hit, T, acc)
+                    self._trace_beyond(surroundings, rays, hit, T, acc, lanes)
                 elif render.terminal != 'black':
                     # The empty container conserves uniform light: what 'trace' would gather is
                     # exactly the ambient.
-                    acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, hit.valid), hit.valid)
+                    acc.add(rays.camera, rays.β * T * outside(hit.p, rays.d, hit.valid, lanes), hit.valid)
                 return
-            rays = self._interface(surroundings, rays, hit, T, reflect=not plus, depth=depth)
+            rays = self._interface(surroundings, rays, hit, T, lanes, reflect=not plus, depth=depth)
 
-    def _trace_beyond(self, surroundings, rays, hit, T, acc):
+    def _trace_beyond(self, surroundings, rays, hit, T, acc, lanes):
         """The light beyond the tree's last segment, through the container without the field.
 
         At each further interface the branch that leaves the container ends with what it meets
@@ -286,18 +287,18 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         alive, β = hit.valid, rays.β * T
         for bounce in range(TRACE_BOUNCES + 1):
             stop = alive & ((bounce == TRACE_BOUNCES) | (_peak(dr.detach(β)) < TRACE_CUTOFF))
-            acc.add(rays.camera, β * outside(hit.p, rays.d, stop), stop)
+            acc.add(rays.camera, β * outside(hit.p, rays.d, stop, lanes), stop)
             if bounce == TRACE_BOUNCES:
                 return
             go = alive & ~stop
-            R, d_r, d_t, region_t = self._split(surroundings, rays, hit)
+            R, d_r, d_t, region_t = self._split(surroundings, rays, hit, lanes)
             # The branch that reaches the world ends there (from inside the refracted one, from
             # outside the reflected one); at an inner interface neither does, and one of the two
             # goes on, chosen with probability R (their weights' mean unchanged).
             out_t, out_r = region_t == 0, rays.region == 0
             d_out, w_out = dr.select(out_t, d_t, d_r), dr.select(out_t, 1.0 - R, dr.select(out_r, R, 0.0))
             escapes = go & (w_out > 0.0)
-            acc.add(rays.camera, β * w_out * outside(_offset(hit.p, hit.n, d_out), d_out, escapes), escapes)
+            acc.add(rays.camera, β * w_out * outside(_offset(hit.p, hit.n, d_out), d_out, escapes, lanes), escapes)
             reflect = out_t | (~out_r & (self._random(rays.size, bounce + TRACE_SALT) < R))
             keep = dr.compress(go & (w_out < 1.0))
             if dr.width(keep) == 0:
@@ -308,14 +309,15 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             region = dr.select(reflect, dr.gather(mi.UInt32, rays.region, keep), dr.gather(mi.UInt32, region_t, keep))
             o = _offset(dr.gather(mi.Point3f, hit.p, keep), dr.gather(type(hit.n), hit.n, keep), d)
             rays = _Rays(o=o, d=d, β=β, camera=dr.gather(mi.UInt32, rays.camera, keep), region=region)
-            hit = self._intersect(surroundings, rays)
+            lanes = self._refining(rays)
+            hit = self._intersect(surroundings, rays, lanes)
             # A ray that grazed an edge and met nothing more sees outside from where it is.
-            acc.add(rays.camera, β * outside(rays.o, rays.d, ~hit.valid), ~hit.valid)
+            acc.add(rays.camera, β * outside(rays.o, rays.d, ~hit.valid, lanes), ~hit.valid)
             alive = hit.valid
             if surroundings.sigma_a is not None:
-                β = dr.select(alive, β * surroundings.attenuation(rays.region, hit.t), β)
+                β = dr.select(alive, β * surroundings.attenuation(rays.region, hit.t, lanes), β)
 
-    def _intersect(self, surroundings, rays) -> '_Hit':
+    def _intersect(self, surroundings, rays, lanes) -> '_Hit':
         """The rays' next container interface: distance, point, normals (differentiable in the pose)."""
         pose, container = surroundings.pose, surroundings.container
         if pose is None:
@@ -325,11 +327,11 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                         valid=si.is_valid(), group=surroundings.group(si))
         # The container as loaded, seen by the rays taken into its frame: t is the same
         # parameter along both rays when the direction keeps its length.
-        o_c, d_c = pose.to_container(rays.o, rays.d)
+        o_c, d_c = pose.to_container(rays.o, rays.d, lanes)
         si = container.ray_intersect(mi.Ray3f(o_c, d_c))
         n_s = interpolated_normal(surroundings.normals, si, o_c + si.t * d_c)
-        return _Hit(t=si.t, p=mi.Point3f(rays.o + si.t * rays.d), n=pose.normal_to_world(si.n),
-                    n_s=pose.normal_to_world(n_s), valid=si.is_valid(), group=surroundings.group(si))
+        return _Hit(t=si.t, p=mi.Point3f(rays.o + si.t * rays.d), n=pose.normal_to_world(si.n, lanes),
+                    n_s=pose.normal_to_world(n_s, lanes), valid=si.is_valid(), group=surroundings.group(si))
 
     def _trace_neus(self, surroundings, rays, acc, jitter):
         # Plain NeuS: the field's unit bounding sphere, ambient beyond it.
@@ -344,7 +346,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         beyond = mi.Point3f(rays.o + rays.d * t_exit)
         rays.o = mi.Point3f(rays.o + rays.d * (t_near * self.frame.scale))
         T = self._render_inside(rays, (t_far - t_near) * self.frame.scale, inside, acc, jitter, None)
-        acc.add(rays.camera, rays.β * T * surroundings.outside(beyond, rays.d), mi.Bool(True))
+        acc.add(rays.camera, rays.β * T * surroundings.outside(beyond, rays.d, True, self._refining(rays)),
+                mi.Bool(True))
 
     def _render_inside(self, rays, t_far, inside, acc, jitter, σ) -> mi.Color3f:
         """Volume render the rays' segments [0, t_far] where ``inside`` (the field's region), in
@@ -357,6 +360,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         s = rays.take(seg)
         t = dr.gather(mi.Float, t_far, seg)
         u = None if jitter is None else dr.gather(mi.Float, jitter, s.camera)
+        σ = None if σ is None else refined(σ, self._refining(s))
         vr = volume_render(self.field, self.sampler, self.frame.to_field(s.o), s.d,
                            dr.zeros(mi.Float, dr.width(seg)), t / self.frame.scale, jitter=u,
                            cos_anneal_ratio=self._cos_anneal_ratio(),
@@ -371,18 +375,23 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         """``n`` uniform numbers of the step's seed and ``salt``: the same for the same step."""
         return mi.PCG32(n, initstate=opaque_seed(salted_seed(self.state.seed or 0, salt))).next_float32()
 
+    def _refining(self, rays) -> mi.Bool | None:
+        """Per ray, whether its gradient reaches the refined quantities (StepState.refining)."""
+        lanes = self.state.refining
+        return None if lanes is None else dr.gather(mi.Bool, lanes, rays.camera)
+
     @staticmethod
-    def _split(surroundings, rays, hit):
+    def _split(surroundings, rays, hit, lanes):
         """At the rays' hits: Fresnel's R, the reflected and refracted directions, and the region
         the refracted ray goes into. Smooth containers bend light by their shading normals, as
         Mitsuba's dielectric does."""
-        R, d_r, d_t = interface(rays.d, hit.n_s, surroundings.eta(hit.group))
+        R, d_r, d_t = interface(rays.d, hit.n_s, surroundings.eta(hit.group, lanes))
         return R, d_r, d_t, surroundings.beyond(hit.group, dr.dot(rays.d, hit.n) < 0.0)
 
-    def _interface(self, surroundings, rays, hit, T, reflect: bool, depth: int = 0):
+    def _interface(self, surroundings, rays, hit, T, lanes, reflect: bool, depth: int = 0):
         """Spawn the next generation: reflected (β·T·R) and refracted (β·T·(1-R)) rays, each in
         the region it goes into."""
-        R, d_r, d_t, region_t = self._split(surroundings, rays, hit)
+        R, d_r, d_t, region_t = self._split(surroundings, rays, hit, lanes)
         β = rays.β * T
         if reflect:
             β_r, β_t = β * R, β * (1.0 - R)

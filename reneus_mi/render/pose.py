@@ -16,6 +16,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from reneus_mi.render.step_state import refined
+
 
 def _cross_matrix(v) -> mi.Matrix3f:
     return mi.Matrix3f(0.0, -v.z, v.y,
@@ -40,8 +42,9 @@ class ContainerPose:
     def _vector(array) -> mi.Vector3f:
         return mi.Vector3f(*(dr.gather(mi.Float, array, i) for i in range(3)))
 
-    def _linear(self):
-        """(R, s): the rotation matrix (Rodrigues) and the per-axis scale, differentiable at 0."""
+    def _linear(self, lanes=None):
+        """(R, s): the rotation matrix (Rodrigues) and the per-axis scale, differentiable at 0
+        (from the rays of ``lanes`` alone: :func:`~reneus_mi.render.step_state.refined`)."""
         r = self._vector(self.rotation)
         θ2 = dr.squared_norm(r)
         θ = dr.sqrt(dr.maximum(θ2, 1e-12))
@@ -50,14 +53,14 @@ class ContainerPose:
         b = dr.select(small, 0.5 - θ2 / 24.0, (1.0 - dr.cos(θ)) / dr.maximum(θ2, 1e-12))
         K = _cross_matrix(r)
         R = dr.identity(mi.Matrix3f) + a * K + b * (K @ K)
-        return R, dr.exp(self._vector(self.log_scale))
+        return refined(R, lanes), refined(dr.exp(self._vector(self.log_scale)), lanes)
 
-    def to_container(self, o: mi.Point3f, d: mi.Vector3f):
+    def to_container(self, o: mi.Point3f, d: mi.Vector3f, lanes: mi.Bool | None = None):
         """World rays in the frame of the container as loaded: (origin, unnormalised direction)."""
-        R, s = self._linear()
+        R, s = self._linear(lanes)
         c = mi.Point3f(self.pivot)
         Rt = R.T
-        o_c = (Rt @ mi.Vector3f(o - c - self._vector(self.translation))) / s + c
+        o_c = (Rt @ mi.Vector3f(o - c - refined(self._vector(self.translation), lanes))) / s + c
         return mi.Point3f(o_c), mi.Vector3f((Rt @ d) / s)
 
     def to_world(self, x: mi.Point3f) -> mi.Point3f:
@@ -66,9 +69,9 @@ class ContainerPose:
         c = mi.Point3f(self.pivot)
         return mi.Point3f(R @ (s * mi.Vector3f(x - c)) + c + self._vector(self.translation))
 
-    def normal_to_world(self, n: mi.Vector3f) -> mi.Vector3f:
+    def normal_to_world(self, n: mi.Vector3f, lanes: mi.Bool | None = None) -> mi.Vector3f:
         """A normal of the container as loaded, in the world (inverse transpose of R diag(s))."""
-        R, s = self._linear()
+        R, s = self._linear(lanes)
         return dr.normalize(R @ (n / s))
 
     def matrix(self) -> np.ndarray:

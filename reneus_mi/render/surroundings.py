@@ -37,6 +37,7 @@ from reneus_mi.render.board_shading import SHADING_LR_SCALE, BoardShading, uv_as
 from reneus_mi.render.interfaces import Interfaces, interfaces_of
 from reneus_mi.render.light import Light, emitter_radiance
 from reneus_mi.render.pose import ContainerPose
+from reneus_mi.render.step_state import refined
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.param_groups import ParamGroup
 
@@ -128,6 +129,7 @@ class Surroundings:
         return out
 
     # The container's optics, per ray (Dr.Jit); region 0 is the world, g + 1 inside interface g.
+    # ``lanes``: the rays whose gradients reach the refined quantities (StepState.refining).
     def group(self, si: mi.SurfaceInteraction3f) -> mi.UInt32:
         """The interface each hit belongs to."""
         g = dr.zeros(mi.UInt32, dr.width(si.t))
@@ -136,43 +138,45 @@ class Surroundings:
                 g = dr.select(si.shape == mi.ShapePtr(shape), group, g)
         return g
 
-    def ior(self, region: mi.UInt32) -> mi.Float:
+    def ior(self, region: mi.UInt32, lanes: mi.Bool | None = None) -> mi.Float:
         """The absolute IOR of each region."""
         n = dr.select(region == 1, dr.gather(mi.Float, self.container_eta, dr.zeros(mi.UInt32, dr.width(region))),
                       1.0)
         if self.inner_ior is not None:
             n = dr.select(region >= 2, dr.gather(mi.Float, self.inner_ior, dr.maximum(region, 2) - 2), n)
-        return n
+        return refined(n, lanes)
 
-    def eta(self, group: mi.UInt32) -> mi.Float:
+    def eta(self, group: mi.UInt32, lanes: mi.Bool | None = None) -> mi.Float:
         """The relative IOR of each interface, inside over outside (as its dielectric's η)."""
-        return self.ior(group + 1) / self.ior(dr.gather(mi.UInt32, self._outer, group))
+        return self.ior(group + 1, lanes) / self.ior(dr.gather(mi.UInt32, self._outer, group), lanes)
 
     def beyond(self, group: mi.UInt32, entering: mi.Bool) -> mi.UInt32:
         """The region a ray refracted through an interface goes into."""
         return dr.select(entering, group + 1, dr.gather(mi.UInt32, self._outer, group))
 
-    def absorption(self, region: mi.UInt32) -> mi.Color3f | None:
+    def absorption(self, region: mi.UInt32, lanes: mi.Bool | None = None) -> mi.Color3f | None:
         """The absorption coefficient of each region (None: no region absorbs)."""
         if self.sigma_a is None:
             return None
         i = 3 * (dr.maximum(region, 1) - 1)
-        return dr.select(region > 0, mi.Color3f(*(dr.gather(mi.Float, self.sigma_a, i + c) for c in range(3))), 0.0)
+        σ = mi.Color3f(*(dr.gather(mi.Float, self.sigma_a, i + c) for c in range(3)))
+        return dr.select(region > 0, refined(σ, lanes), 0.0)
 
-    def attenuation(self, region: mi.UInt32, t: mi.Float) -> mi.Color3f:
+    def attenuation(self, region: mi.UInt32, t: mi.Float, lanes: mi.Bool | None = None) -> mi.Color3f:
         """What a segment of length ``t`` in each region lets through (Beer-Lambert)."""
-        σ = self.absorption(region)
+        σ = self.absorption(region, lanes)
         return mi.Color3f(1.0) if σ is None else dr.exp(-σ * t)
 
-    def ambient(self, d: mi.Vector3f) -> mi.Color3f:
+    def ambient(self, d: mi.Vector3f, lanes: mi.Bool | None = None) -> mi.Color3f:
         """Radiance arriving from direction ``d`` outside the container (C_out)."""
-        return emitter_radiance(self.emitter, d) if self.light is None else self.light.eval(d)
+        return emitter_radiance(self.emitter, d) if self.light is None else refined(self.light.eval(d), lanes)
 
-    def outside(self, o: mi.Point3f, d: mi.Vector3f, active: mi.Bool | bool = True) -> mi.Color3f:
+    def outside(self, o: mi.Point3f, d: mi.Vector3f, active: mi.Bool | bool = True,
+                lanes: mi.Bool | None = None) -> mi.Color3f:
         """Radiance seen from ``o`` (outside the container) looking along ``d``: the emission of
         the backdrop where the ray meets it (its front; the back of an area emitter is black),
         else C_out."""
-        L = self.ambient(d)
+        L = self.ambient(d, lanes)
         if self.backdrop is None:
             return L
         si = self.backdrop.ray_intersect(mi.Ray3f(o, d), active)

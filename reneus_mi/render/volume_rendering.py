@@ -81,8 +81,8 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
     training, 1 the true cosine. A segment with ``t_far <= t_near`` contributes
     nothing (transmittance 1), so callers can mask lanes that way; so does one
     that the sampler's occupancy grid finds empty, at no field evaluation.
-    ``sigma_a`` (RGB, per unit of ``t``; None: none) is the absorption of the medium the
-    field lies in: the light of a section at ``t`` reaches ``o`` times exp(-sigma_a t)
+    ``sigma_a`` (RGB, per unit of ``t``, one for all segments or one each; None: none) is the
+    absorption of the medium the field lies in: the light of a section at ``t`` reaches ``o`` times exp(-sigma_a t)
     (Beer-Lambert, from ``o``); the light from beyond ``t_far`` is the caller's to attenuate.
     """
     if isinstance(cos_anneal_ratio, (int, float)) and not 0.0 <= cos_anneal_ratio <= 1.0:
@@ -97,7 +97,7 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
     n_kept = dr.width(keep)
     r = _render(field, sampler, dr.gather(mi.Point3f, o, keep), dr.gather(mi.Vector3f, d, keep),
                 segments.t_near, segments.t_far, None if jitter is None else dr.gather(mi.Float, jitter, keep),
-                cos_anneal_ratio, sigma_a)
+                cos_anneal_ratio, _per_segment(sigma_a, lambda σ: dr.gather(mi.Color3f, σ, keep)))
     if n_kept == n_rays:
         return r
 
@@ -111,6 +111,11 @@ def volume_render(field, sampler: NeuSSampler, o: mi.Point3f, d: mi.Vector3f, t_
                         depth=spread(mi.Float, r.depth, 0.0), normal=spread(mi.Vector3f, r.normal, 0.0),
                         eikonal=spread(mi.Float, r.eikonal, 0.0), n_samples=spread(mi.UInt32, r.n_samples, 0),
                         nearest=spread(mi.Float, r.nearest, 0.0), nearest_color=spread(mi.Color3f, r.nearest_color, 0.0))
+
+
+def _per_segment(sigma_a, spread):
+    """``sigma_a`` spread as its segments are (``spread``) where it holds one per segment."""
+    return sigma_a if sigma_a is None or dr.width(sigma_a) == 1 else spread(sigma_a)
 
 
 def _stretch(t: mi.Float, t_near: mi.Float, t_far: mi.Float, n: int) -> mi.Float:
@@ -160,7 +165,7 @@ def _render(field, sampler, o, d, t_near, t_far, jitter, cos_anneal_ratio, sigma
     alpha = dr.select(dist > 0.0, alpha, 0.0)
     color = field.radiance(x, d_s, normal, feature)
     if sigma_a is not None:
-        color *= dr.exp(-sigma_a * t_mid)
+        color *= dr.exp(-_per_segment(sigma_a, lambda σ: dr.repeat(σ, n)) * t_mid)
     eikonal = dr.square(grad_norm - 1.0)
     # One kernel for both networks: each block reduction below evaluates its
     # input, and would otherwise re-run the networks behind it.

@@ -197,6 +197,15 @@ class PixelSampler:
             return None
         return mi.Float(dr.arange(mi.UInt32, n)) < dr.opaque(mi.Float, (1.0 - self.config.error_share) * n)
 
+    def uniform_rays(self) -> mi.Bool | None:
+        """Which rays of the last :meth:`batch` go through its uniformly drawn pixels (None: all
+        of them, or none)."""
+        n = dr.width(self.drawn) if self.drawn is not None else 0
+        lanes = self.uniform_lanes(n)
+        if lanes is None or self.config.rays_per_pixel == 1:
+            return lanes
+        return dr.gather(mi.Bool, lanes, dr.arange(mi.UInt32, n * self.config.rays_per_pixel) % n)
+
     def record(self, color: mi.Color3f, target: mi.Color3f) -> None:
         """The colour error of the batch just drawn, per pixel, for the next draws by error; the
         pixels of each drawn one's block never drawn themselves take it as their estimate."""

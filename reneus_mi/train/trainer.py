@@ -253,10 +253,11 @@ class Trainer:
         """One optimisation step; raises TrainingError before a bad update is applied."""
         cfg, it, s = self.cfg, self.iteration, self.schedule_step()
         start = time.perf_counter()
-        self.integrator.begin_step(StepState(step=it, schedule=s, cos_anneal_ratio=cfg.cos_anneal_ratio(s),
-                                             seed=step_seed(cfg.seed, it, JITTER)))
         batch = self.batch
         ray, target = self.pixels.batch(it, batch)
+        self.integrator.begin_step(StepState(step=it, schedule=s, cos_anneal_ratio=cfg.cos_anneal_ratio(s),
+                                             seed=step_seed(cfg.seed, it, JITTER),
+                                             refining=self.pixels.uniform_rays() if self.refined else None))
         result = self.integrator.render_rays(self.scene, ray)
         if self.pixels.config.rays_per_pixel > 1:
             # A pixel's value: its rays' mean radiance, tone-mapped as the camera's sensor does

@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from reference import (AMBIENT, derivatives_agree, path_reference, path_scene, render_derivatives, reneus_pixels,
-                       reneus_scene)
+from reference import (AMBIENT, derivatives_agree, path_reference, path_scene, pixel_rays, render_derivatives,
+                       reneus_pixels, reneus_scene)
 from reneus_mi.config import RefineConfig
 from reneus_mi.geometry.shapes import container_mesh, write_container
 from reneus_mi.render.light import Light, fibonacci_directions, sh_basis
 from reneus_mi.render.pose import ContainerPose
+from reneus_mi.render.step_state import StepState
 
 
 def _constant(value=AMBIENT):
@@ -73,7 +74,7 @@ def test_pose_maps_rays_and_normals_consistently():
 
 def _refinable_scene(res=8, **settings):
     scene = reneus_scene(res, **{'field_inv_s': 60.0, **settings})
-    scene.integrator().configure(refine=RefineConfig(pose=True, light='ambient'))
+    scene.integrator().configure(refine=RefineConfig(pose=True, light='ambient', absorption=True))
     scene.integrator().bind(scene)
     return scene
 
@@ -102,6 +103,33 @@ def test_render_gradients_of_surroundings_match_finite_differences(key, i, with_
     assert np.abs(ad - fd)[agree].sum() < 0.02 * np.abs(fd)[agree].sum(), key
     # A texel's gain moves a pixel by the print's radiance there through the glass (black print: little).
     assert np.abs(fd).max() > (0.03 if key == 'board.shading' else 0.3), (key, np.abs(fd).max())
+
+
+@pytest.mark.parametrize('key, i', [
+    ('container.eta', 0), ('container.translation', 0), ('container.rotation', 2), ('container.log_scale', 1),
+    ('light.radiance', 1), ('container.sigma_a', 2), ('board.shading', 4 * 8 + 4)])
+def test_refined_quantities_learn_from_the_refining_rays_alone(key, i):
+    # StepState.refining: a refined quantity's derivative is the same on the rays it names and
+    # none on the others (an error-drawn batch's biased rays); the board's shading, fitted with
+    # the field as part of the model, keeps its derivative on every ray. The radiance is the same.
+    scene = _refinable_scene(16, max_depth=2, n_fine=0, with_board=True, board_texels=8, sigma_a=(0.1, 0.2, 0.3))
+    integrator, ray = scene.integrator(), pixel_rays(scene)
+    lanes = dr.arange(mi.UInt32, dr.width(ray.o)) % 3 == 0
+    array = integrator.params()[key]
+    out = []
+    for refining in (None, lanes):
+        integrator.begin_step(StepState(refining=refining))
+        dr.enable_grad(array)
+        dr.set_grad(array, mi.Float(np.eye(dr.width(array), dtype=np.float32)[i]))
+        L = integrator.render_rays(scene, ray).L
+        dr.forward_to(L)
+        out.append((np.array(L), np.array(dr.grad(L))))
+        dr.disable_grad(array)
+    (L_all, d_all), (L_some, d_some) = out
+    keep = np.array(lanes) if key != 'board.shading' else np.ones(dr.width(ray.o), bool)
+    assert np.array_equal(L_all, L_some)
+    assert np.abs(d_all[:, keep]).max() > 1e-3, key     # the pixels it moves include kept ones
+    assert np.array_equal(d_some[:, keep], d_all[:, keep]) and not np.any(d_some[:, ~keep]), key
 
 
 # ------------------------------------------------------------ smooth glass
