@@ -54,6 +54,9 @@ class RayTreeResult:
     each passes nearest it, weighted as L (with its gradient; the ``reach`` term of the loss)."""
     nearest_color: mi.Color3f
     """The pixel value those segments would bring if they ended there (no gradient)."""
+    near_edge: mi.Bool
+    """Whether the ray enters or leaves the container near one of its crease edges
+    (``edge_margin``; False without one): training leaves it out of the colour loss."""
 
 
 class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
@@ -223,7 +226,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         L = acc.result()
         return RayTreeResult(color=self.tonemap(L), L=L, mask=acc.mask, sparsity=acc.sparsity,
                              eikonal=acc.eikonal, n_samples=acc.n_samples, normal=acc.normal,
-                             nearest=acc.nearest, nearest_color=self.tonemap(acc.nearest_color))
+                             nearest=acc.nearest, nearest_color=self.tonemap(acc.nearest_color),
+                             near_edge=acc.near_edge)
 
     def _cos_anneal_ratio(self):
         """The step's ratio, opaque: kernels read it from memory rather than compile anew for each value."""
@@ -252,6 +256,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             hit = self._intersect(surroundings, rays, lanes)
             if depth == 0:
                 acc.mark_container(rays.camera, hit.valid)
+            if depth <= 1 and surroundings.creases is not None:
+                acc.mark_edge(rays.camera, hit.valid & surroundings.near_crease(hit.p))
             leaving = hit.valid & (dr.dot(rays.d, hit.n) > 0)
             acc.add(rays.camera, rays.β * outside(rays.o, rays.d, ~hit.valid, lanes), ~hit.valid)
             in_field = hit.valid & (rays.region == field) & self.state.field
@@ -473,9 +479,13 @@ class _Accumulator:
         self.normal = dr.zeros(mi.Vector3f, n)
         self.nearest = dr.zeros(mi.Float, n)
         self.nearest_color = dr.zeros(mi.Color3f, n)
+        self.near_edge = dr.zeros(mi.Bool, n)
 
     def mark_container(self, camera, hit):
         dr.scatter(self.mask, hit, camera)
+
+    def mark_edge(self, camera, near):
+        dr.scatter(self.near_edge, True, camera, near)
 
     def add(self, camera, value, active):
         dr.scatter_add(self.L, value, camera, active)

@@ -72,11 +72,17 @@ class RenderConfig:
     """Container faces meeting at more than this angle (degrees) are not smoothed together:
     each side bends light by its own faces (a box stays a box however its file was written);
     smoother surfaces use the file's stored normals, or the mean of their faces' normals."""
+    edge_margin: float = 0.0
+    """Camera rays that enter or leave the container within this distance (scene units) of
+    one of its crease edges are flagged, and training leaves them out of its colour loss: a
+    block stated as sharp but polished round at its edges bends them otherwise than the
+    model (0: every ray counts)."""
 
     def __post_init__(self):
         check_choice(self, 'mode', MODES)
         check_choice(self, 'terminal', TERMINALS)
-        check_numbers(self, at_least_zero=('max_depth', 'rr_threshold', 'board_texels'), positive=('gamma',))
+        check_numbers(self, at_least_zero=('max_depth', 'rr_threshold', 'board_texels', 'edge_margin'),
+                      positive=('gamma',))
         if not 0.0 <= self.crease_angle <= 180.0:
             raise ReneusError(f'crease_angle={self.crease_angle}: expected degrees in [0, 180]')
 

@@ -135,6 +135,18 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
     return n_corner.reshape(-1, 3, 3).astype(np.float32)
 
 
+def crease_edges(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> np.ndarray:
+    """The edges (M,2,3) of a Mitsuba mesh as loaded where its faces meet at more than
+    ``crease_angle`` degrees (a box's twelve edges; a jar's rims), its vertices welded as
+    :func:`corner_normals` welds them."""
+    params = mi.traverse(shape)
+    mesh = trimesh.Trimesh(np.array(params['vertex_positions'], np.float64).reshape(-1, 3),
+                           np.array(params['faces']).reshape(-1, 3), process=False)
+    mesh.merge_vertices(digits_vertex=max(0, int(-np.log10(_WELD * max(float(mesh.extents.max()), 1e-30)))))
+    sharp = mesh.face_adjacency_angles > np.radians(crease_angle)
+    return mesh.vertices[mesh.face_adjacency_edges[sharp]]
+
+
 def shading_normals(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> mi.Float:
     """:func:`corner_normals` of a Mitsuba mesh as it was loaded: 9 floats per face, the
     normals of its corners in order (what the ``reneus`` integrator interpolates)."""

@@ -32,7 +32,7 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.geometry.container import CREASE_ANGLE, is_container, scene_of, shading_normals
+from reneus_mi.geometry.container import CREASE_ANGLE, crease_edges, is_container, scene_of, shading_normals
 from reneus_mi.render.board_shading import SHADING_LR_SCALE, BoardShading, uv_aspect
 from reneus_mi.render.interfaces import Interfaces, interfaces_of
 from reneus_mi.render.light import Light, emitter_radiance
@@ -48,7 +48,8 @@ class Surroundings:
 
     def __init__(self, interfaces: Interfaces | None, shapes: list, emitter: mi.Emitter, *,
                  backdrop: list = (), light: str = 'emitter', pose: bool = False, pivot=(0.0, 0.0, 0.0),
-                 crease_angle: float = CREASE_ANGLE, board_texels: int = 0, absorption: bool = False):
+                 crease_angle: float = CREASE_ANGLE, board_texels: int = 0, absorption: bool = False,
+                 edge_margin: float = 0.0):
         #: The nested interfaces (None: no container, mode 'neus').
         self.interfaces = interfaces
         self.container_eta = self.inner_ior = self.sigma_a = None
@@ -68,6 +69,14 @@ class Surroundings:
         #: The shading normals of each mesh's triangle corners (the container's optics).
         self.normals = {shape: shading_normals(shape, crease_angle) for shape in shapes
                         if isinstance(shape, mi.Mesh)}
+        #: The container's crease edges, ends a and b (None: rays near them are not flagged;
+        #: a smooth container has none).
+        self.creases = None
+        self.edge_margin = edge_margin
+        segments = [crease_edges(shape, crease_angle) for shape in self.normals] if edge_margin > 0.0 else []
+        if sum(map(len, segments)):
+            ends = np.concatenate(segments).astype(np.float32)
+            self.creases = tuple(mi.Point3f(*(mi.Float(ends[:, end, i]) for i in range(3))) for end in (0, 1))
         self.emitter = emitter
         self.light = None if light == 'emitter' else Light(light, emitter)
         self.pose = ContainerPose(pivot) if pose else None
@@ -170,6 +179,20 @@ class Surroundings:
     def ambient(self, d: mi.Vector3f, lanes: mi.Bool | None = None) -> mi.Color3f:
         """Radiance arriving from direction ``d`` outside the container (C_out)."""
         return emitter_radiance(self.emitter, d) if self.light is None else refined(self.light.eval(d), lanes)
+
+    def near_crease(self, p: mi.Point3f) -> mi.Bool:
+        """Whether each point lies within ``edge_margin`` of a crease edge of the container as
+        loaded (the pose, a fraction of a millimetre, is left out)."""
+        a, b = self.creases
+        count = dr.opaque(mi.UInt32, dr.width(a.x))
+        r2 = dr.opaque(mi.Float, self.edge_margin ** 2)
+
+        def body(k, near):
+            e0, e1 = dr.gather(mi.Point3f, a, k), dr.gather(mi.Point3f, b, k)
+            e = e1 - e0
+            t = dr.clip(dr.dot(p - e0, e) / dr.maximum(dr.squared_norm(e), 1e-20), 0.0, 1.0)
+            return k + 1, near | (dr.squared_norm(p - (e0 + t * e)) < r2)
+        return dr.while_loop((mi.UInt32(0), dr.zeros(mi.Bool, dr.width(p.x))), lambda k, near: k < count, body)[1]
 
     def outside(self, o: mi.Point3f, d: mi.Vector3f, active: mi.Bool | bool = True,
                 lanes: mi.Bool | None = None) -> mi.Color3f:
@@ -294,4 +317,4 @@ def surroundings_of(scene: mi.Scene, render, refine) -> 'Surroundings':
     return Surroundings(interfaces_of(shapes), shapes, scene.environment(), backdrop=backdrop,
                         light=refine.light_model(), pose=refine.pose, pivot=0.5 * (bbox.min + bbox.max),
                         crease_angle=render.crease_angle, board_texels=render.board_texels,
-                        absorption=refine.absorption)
+                        absorption=refine.absorption, edge_margin=render.edge_margin)

@@ -265,6 +265,10 @@ class Trainer:
             per_pixel = self.pixels.pixel_mean
             result = replace(result, color=self.integrator.tonemap(per_pixel(result.L)),
                              nearest=per_pixel(result.nearest), nearest_color=per_pixel(result.nearest_color))
+        if self.integrator.model.render.edge_margin > 0.0:
+            # Rays through the container's edges keep their colour: no loss, no error to draw by.
+            near = self.pixels.pixel_mean(dr.select(result.near_edge, 1.0, 0.0)) > 0.0
+            target = dr.select(near, dr.detach(result.color), target)
         self.pixels.record(result.color, target)
         silhouette = None if self.silhouette is None else self.silhouette(it, self.surroundings.pose)
         terms = losses.loss_dict(result, target, cfg, silhouette)

@@ -15,7 +15,8 @@ import pytest
 import trimesh
 
 import drjit as dr
-from reference import BLOCK_HALF, BLOCK_ROTATION, path_reference, path_scene, reneus_pixels
+import mitsuba as mi
+from reference import BLOCK_HALF, BLOCK_ROTATION, path_reference, path_scene, reneus_pixels, reneus_scene
 from reneus_mi.geometry.container import container_shape, corner_normals, shading_mesh
 
 RES = 24
@@ -176,3 +177,26 @@ def test_cylinder_is_smooth_around_and_sharp_at_its_rims(sections):
     exact /= np.linalg.norm(exact, axis=2, keepdims=True)
     assert np.abs(n[side] - exact).max() < 1e-5
     assert np.abs(n[~side] - _face_normals(cylinder)[~side]).max() < 1e-6
+
+
+@pytest.mark.parametrize('shape', ['box', 'cylinder', 'sphere'])
+def test_rays_near_a_crease_are_flagged(shape, tmp_path):
+    # model.render.edge_margin: a ray straight through the container is flagged where it enters
+    # or leaves within the margin of an edge where faces meet at a crease, and only there: a
+    # box's twelve edges (written one vertex per corner, as a soup), a jar's two rims and not
+    # its smooth side; a smooth container (a rounded block) has no crease.
+    margin = 0.1
+    mesh = {'box': lambda: trimesh.creation.box(extents=(2.0, 2.0, 2.0)),
+            'cylinder': lambda: trimesh.creation.cylinder(radius=1.0, height=2.0, sections=64),
+            'sphere': lambda: trimesh.creation.icosphere(subdivisions=4, radius=1.0)}[shape]()
+    mesh.unmerge_vertices()
+    path = _write(str(tmp_path), f'{shape}.ply', mesh)
+    scene = reneus_scene(8, mesh=path, field_radius=0.05, edge_margin=margin)
+    # Rays along -x at heights z and depths y: through a box's faces x = +-1, through the
+    # cylinder's side (a smooth surface) and out.
+    z, y = (g.ravel() for g in np.meshgrid(np.linspace(-0.985, 0.985, 40), [-0.95, -0.5, 0.0, 0.5, 0.95]))
+    ray = mi.Ray3f(mi.Point3f(5.0, mi.Float(y), mi.Float(z)), mi.Vector3f(-1.0, 0.0, 0.0))
+    near = np.array(scene.integrator().render_rays(scene, ray).near_edge)
+    expected = (((1.0 - np.abs(z) < margin) & (shape != 'sphere'))
+                | ((shape == 'box') & (1.0 - np.abs(y) < margin)))
+    assert np.array_equal(near, expected) and near.any() == (shape != 'sphere')

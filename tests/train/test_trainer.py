@@ -15,7 +15,7 @@ from reneus_mi.config import TrainConfig, replace
 from reneus_mi.train import runs
 from reneus_mi.train.trainer import next_batch, training_bytes
 from reneus_mi.utils.errors import ReneusError
-from tiny import new_trainer
+from tiny import new_trainer, tiny_spec
 
 
 def test_traverse_shows_the_trained_weights(scene_xml, tmp_path):
@@ -125,3 +125,17 @@ def test_sharpness_stays_under_its_rising_cap(scene_xml, tmp_path):
             assert s == pytest.approx(8.0, rel=1e-6)
     with pytest.raises(ReneusError, match=r'train.sharpness_end=32.0: expected at least train.sharpness_start=64.0'):
         TrainConfig(sharpness_start=64.0, sharpness_end=32.0)
+
+
+def test_rays_through_the_container_edges_are_left_out_of_the_colour_loss(scene_xml, tmp_path):
+    """model.render.edge_margin: the flagged rays keep their colour (no loss, no error to draw
+    by); a margin wider than the container flags every ray that meets it (the few drawn
+    pixels whose ray misses it still count)."""
+    colour, drawn_by_error = {}, {}
+    for margin in (0.0, 100.0):
+        spec = tiny_spec(scene_xml)
+        spec.config = replace(spec.config, **{'model.render.edge_margin': margin})
+        trainer = runs.open_spec(spec, str(tmp_path / f'margin_{margin:g}')).trainer()
+        colour[margin] = trainer.step().terms['color']
+        drawn_by_error[margin] = int(np.sum(np.array(trainer.pixels.error) > 0.0))
+    assert colour[100.0] < 0.1 * colour[0.0] and drawn_by_error[100.0] < 0.1 * drawn_by_error[0.0]
