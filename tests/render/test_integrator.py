@@ -46,8 +46,8 @@ def test_matches_path_tracer(reference):
     assert mean_err < MEAN_TOL and p99 < P99_TOL, (mean_err, p99)
 
 
-def _no_reflection(self, rays, hit, T, eta, reflect, depth=0):
-    return ORIGINAL_INTERFACE(self, rays, hit, T, eta, False, depth)
+def _no_reflection(self, surroundings, rays, hit, T, lanes, reflect, depth=0):
+    return ORIGINAL_INTERFACE(self, surroundings, rays, hit, T, lanes, False, depth)
 
 
 def _half_fresnel(d, n, eta):
@@ -96,7 +96,7 @@ def test_board_comparison_has_teeth(board_reference, monkeypatch):
     # Without the board lookup (C_out wherever a ray leaves the glass) the glass's pixels fail.
     from reneus_mi.render.surroundings import Surroundings
     depth, mean, glass = board_reference
-    monkeypatch.setattr(Surroundings, 'outside', lambda self, o, d, active=True: self.ambient(d))
+    monkeypatch.setattr(Surroundings, 'outside', lambda self, o, d, active=True, lanes=None: self.ambient(d, lanes))
     image = reneus_pixels(reneus_scene(RES, max_depth=depth, terminal='black', with_board=True))
     assert np.abs(image - mean)[glass].mean() > 2 * MEAN_TOL
 

@@ -68,9 +68,9 @@ def test_nested_container_matches_path_tracer(kind, extra):
     assert mean_err < MEAN_TOL and p99 < P99_TOL, (kind, mean_err, p99)
 
 
-def _absolute_ior(self, group):
+def _absolute_ior(self, group, lanes=None):
     """An inner interface given the IOR inside it, not the ratio of its two sides."""
-    return self.ior(group + 1)
+    return self.ior(group + 1, lanes)
 
 
 @pytest.mark.parametrize('kind', CONTAINERS)
