@@ -137,8 +137,8 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
 
 def crease_edges(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> np.ndarray:
     """The edges (M,2,3) of a Mitsuba mesh as loaded where its faces meet at more than
-    ``crease_angle`` degrees (a box's twelve edges; a jar's rims), its vertices welded as
-    :func:`corner_normals` welds them."""
+    ``crease_angle`` degrees (a box's twelve edges; a jar's rims), its vertices welded to about
+    :data:`_WELD` of its size (trimesh's rounding, not :func:`corner_normals`' own weld)."""
     params = mi.traverse(shape)
     mesh = trimesh.Trimesh(np.array(params['vertex_positions'], np.float64).reshape(-1, 3),
                            np.array(params['faces']).reshape(-1, 3), process=False)
