@@ -130,7 +130,7 @@ def run_method(obj: str, key: str, out: str, cfg: dict, *, model_extra: dict | N
                run_name: str | None = None, progress: bool = False) -> dict:
     """Fit one method on one object (or reuse its run) and evaluate it; returns result.json's dict."""
     import reneus_mi  # noqa: F401  (variant, plugins)
-    from reneus_mi.train import runs
+    from reneus_mi import runs
     from reneus_mi.config import to_dict
     from reneus_mi.data import load_dataset
     from reneus_mi.geometry.container import load_container

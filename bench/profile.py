@@ -170,16 +170,13 @@ def ir_counts(ir: str) -> dict:
 def child(args) -> None:
     """One scene: print one JSON line with the step's figures and the kernels."""
     import reneus_mi  # noqa: F401
-    from reneus_mi.config import replace
-    from reneus_mi.train import runs
+    from reneus_mi import runs
 
-    spec = runs.spec_of_scene(args.one)
-    changes = {'train.iterations': 10 ** 7, 'train.validate_every': 0, 'train.checkpoint_every': 0}
+    train = {'iterations': 10 ** 7, 'validate_every': 0, 'checkpoint_every': 0}
     if args.batch:
-        changes.update({'train.batch_rays': args.batch, 'train.sample_budget': 0})
-    spec.config = replace(spec.config, **changes)
+        train.update({'batch_rays': args.batch, 'sample_budget': 0})
     with tempfile.TemporaryDirectory(prefix='profile_') as folder:
-        print(json.dumps(measure(args, runs.open_spec(spec, folder).trainer())))
+        print(json.dumps(measure(args, runs.prepare(folder, args.one, train=train).trainer())))
 
 
 def measure(args, trainer) -> dict:
@@ -276,9 +273,9 @@ def measure(args, trainer) -> dict:
 def first_step(scene: str, cold: bool) -> float:
     """A fresh process's first training step (tracing, compilation, one step), in seconds; ``cold``:
     with an empty kernel cache (Dr.Jit keeps it under ``HOME``)."""
-    code = ('import reneus_mi, sys, tempfile; from reneus_mi.train import runs\n'
+    code = ('import reneus_mi, sys, tempfile; from reneus_mi import runs\n'
             'with tempfile.TemporaryDirectory() as out:\n'
-            '    print(runs.open_spec(runs.spec_of_scene(sys.argv[1]), out).trainer().step().seconds)')
+            '    print(runs.prepare(out, sys.argv[1]).trainer().step().seconds)')
     with tempfile.TemporaryDirectory(prefix='drjit_home_') as home:
         env = dict(os.environ, HOME=home) if cold else None
         done = subprocess.run([sys.executable, '-c', code, scene], env=env, capture_output=True, text=True,

@@ -14,7 +14,7 @@ wrong value held fixed (the paper's method) and refining it
 Chamfer-L1 x100 of each mesh (largest component) and the refined value
 against the truth. Writes the section ``refine`` of ``DOC/comparison.md``.
 Runs live in ``OUT/<object>/<quantity>_<variant>/`` and are resumed or reused
-(:func:`reneus_mi.train.runs.run_many`).
+(:func:`reneus_mi.runs.run_many`).
 """
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ def specs(obj: str, data: str, out: str, quantities, iterations: int) -> dict:
     """The runs of one object: the truth, and per quantity the wrong value fixed and refined."""
     from reneus_mi.config import replace
     from reneus_mi.data import load_dataset
-    from reneus_mi.train.runs import spec_of_scene
+    from reneus_mi.runs import spec_of_scene
     from reneus_mi.data.scene_xml import write_scene
     from reneus_mi.data.synth import miscalibrated
     train = {'train.iterations': iterations, 'train.batch_rays': 512, 'train.validate_every': 0,
@@ -104,7 +104,7 @@ def main(argv=None) -> int:
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh
     from reneus_mi.utils.io import write_section
-    from reneus_mi.train.runs import run_many
+    from reneus_mi.runs import run_many
     from reneus_mi.data.synth import make_dataset
     out = os.path.abspath(args.out)
     start = time.perf_counter()

@@ -65,13 +65,11 @@ def child(args) -> None:
     import drjit as dr
 
     import reneus_mi  # noqa: F401
-    from reneus_mi.train import runs
-    from reneus_mi.config import replace, with_settings
+    from reneus_mi import runs
     from reneus_mi.data import load_dataset
     from reneus_mi.geometry.chamfer import chamfer
     from reneus_mi.geometry.mesh import load_mesh
     from reneus_mi.geometry.surface import components
-    from reneus_mi.train.runs import spec_of_scene
     from reneus_mi.data.scene_xml import write_scene
 
     data = dataset(args)
@@ -79,11 +77,9 @@ def child(args) -> None:
     tag = args.one.replace(':', '_').replace('=', '-').replace(',', '_')
     xml = os.path.join(args.out, f'scene_{tag}.xml')
     write_scene(load_dataset(data), xml, preset=name)
-    spec = spec_of_scene(xml, None)
-    spec.config, _ = with_settings(replace(spec.config, **{'train.iterations': 10 ** 7, 'train.validate_every': 0,
-                                                           'train.checkpoint_every': 0}), args.set + own)
     run_dir = os.path.join(args.out, tag)
-    trainer = runs.open_spec(spec, run_dir).trainer()
+    trainer = runs.prepare(run_dir, xml, train={'iterations': 10 ** 7, 'validate_every': 0, 'checkpoint_every': 0},
+                           settings=args.set + own).trainer()
     gt = load_mesh(load_dataset(data).gt_mesh)
     points = sorted(args.points)
     curve, steps = [], []

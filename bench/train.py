@@ -33,21 +33,17 @@ def child(args) -> None:
     import mitsuba as mi
 
     import reneus_mi  # noqa: F401
-    from reneus_mi.train import runs
-    from reneus_mi.config import replace
+    from reneus_mi import runs
     from reneus_mi.data import load_dataset
     from reneus_mi.data.synth import demo_scene
-    from reneus_mi.train.runs import spec_of_scene
     from reneus_mi.data.scene_xml import write_scene
 
     scene_path = demo_scene(args.data)
     xml = os.path.join(args.data, f'scene_bench_{args.one}.xml')
     write_scene(load_dataset(os.path.join(os.path.dirname(scene_path), 'box')), xml, preset=args.one)
-    spec = spec_of_scene(xml, None)
-    spec.config = replace(spec.config, **{'train.batch_rays': args.one_batch, 'train.iterations': 10 ** 6,
-                                          'train.validate_every': 0, 'train.checkpoint_every': 0})
     with tempfile.TemporaryDirectory() as out:
-        trainer = runs.open_spec(spec, out).trainer()
+        trainer = runs.prepare(out, xml, train={'batch_rays': args.one_batch, 'iterations': 10 ** 6,
+                                                'validate_every': 0, 'checkpoint_every': 0}).trainer()
         scene = trainer.scene
         warm = []
         for _ in range(args.warmup):

@@ -7,12 +7,13 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from reneus_mi.config import ModelConfig, RefineConfig
+from reneus_mi.render.config import ModelConfig
+from reneus_mi.train.config import RefineConfig
 from reneus_mi.fields import Field
 from reneus_mi.geometry.container import interpolated_normal
 from reneus_mi.geometry.frame import FieldFrame
 from reneus_mi.render.optics import interface
-from reneus_mi.render.properties import read_properties
+from reneus_mi.plugins.properties import read_properties
 from reneus_mi.render.seeds import opaque_seed, salted_seed
 from reneus_mi.render.step_state import StepState, refined
 from reneus_mi.render.surroundings import Surroundings, scene_parts, shapes_bbox, surroundings_of
@@ -76,7 +77,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
          ``demo``, ... (Default: ``paper``)
      * - mode, max_depth, terminal, gamma, aovs
        - |string|, |int|, |string|, |float|, |bool|
-       - The ray tree (:class:`~reneus_mi.config.RenderConfig`): ``reneus``,
+       - The ray tree (:class:`~reneus_mi.render.config.RenderConfig`): ``reneus``,
          ``neus`` or ``neus_plus``; D_re; ``trace``, ``ambient`` or ``black``; the output
          is C^(1/gamma); AOVs ``mask``, ``sparsity``, ``nx, ny, nz``.
      * - crease_angle
@@ -106,7 +107,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
        - Folder of the photographs and cameras that ``reneus_mi.optimize``
          fits the field to. Not used for rendering. (Default: none)
 
-    **Settings.** Every property is a field of :class:`reneus_mi.config.ModelConfig`
+    **Settings.** Every property is a field of :class:`reneus_mi.render.config.ModelConfig`
     under the same name: ``preset`` picks a named configuration
     (:mod:`reneus_mi.presets`), and the properties given override it.
 
@@ -119,7 +120,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
     ``container.eta`` appears beside them (and its medium's absorption
     ``container.sigma_a``), and the container's pose and the light
     where the integrator is told to refine them (:meth:`configure` with a
-    :class:`~reneus_mi.config.RefineConfig`; :mod:`reneus_mi.render.surroundings`).
+    :class:`~reneus_mi.train.config.RefineConfig`; :mod:`reneus_mi.render.surroundings`).
     """
 
     def __init__(self, props: mi.Properties):

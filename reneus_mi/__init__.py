@@ -10,9 +10,11 @@ from reneus_mi.utils import interrupt
 if interrupt.is_command():
     interrupt.install()
 
-from reneus_mi.utils.variant import ensure_variant, set_variant  # noqa: E402  (after the interrupt)
+from reneus_mi.utils.variant import ensure_variant, on_set, set_variant  # noqa: E402  (after the interrupt)
+from reneus_mi.plugins import register  # noqa: E402
 
 ensure_variant()
+on_set(register)
 
 __all__ = ['set_variant']
 __version__ = '0.1.0'

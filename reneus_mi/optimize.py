@@ -21,7 +21,7 @@ from reneus_mi.config import TrainConfig
 from reneus_mi.data.synth import demo_scene
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.mesh import load_mesh
-from reneus_mi.train import runs
+from reneus_mi import runs
 from reneus_mi.train.run_folder import RunFolder, recent_psnr
 from reneus_mi.utils import cli, interrupt
 from reneus_mi.utils.errors import ReneusError, exit_on_error

@@ -20,7 +20,7 @@ tiny    tests and notebook smoke runs: width 16, 8 + 8 samples, 64 rays
 ======= ==============================================================
 
 ``preset(name)`` returns a fresh copy; change it with
-:func:`reneus_mi.config.replace` (``replace(cfg, **{'train.iterations': 100})``).
+:func:`reneus_mi.utils.settings.replace` (``replace(cfg, **{'train.iterations': 100})``).
 """
 from __future__ import annotations
 

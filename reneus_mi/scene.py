@@ -20,7 +20,7 @@ from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.fields.hashgrid import HashGridFieldConfig
 from reneus_mi.geometry.container import check_container_files
 from reneus_mi.presets import preset
-from reneus_mi.render.properties import xml_properties
+from reneus_mi.plugins.properties import xml_properties
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError, exit_on_error
 

@@ -25,8 +25,8 @@ import mitsuba as mi
 import numpy as np
 
 from reneus_mi.config import replace
-from reneus_mi.train import runs
-from reneus_mi.train.runs import spec_of_scene
+from reneus_mi import runs
+from reneus_mi.runs import spec_of_scene
 from reneus_mi.train.trainer import Trainer
 
 PARAM_ATOL = 1e-5
@@ -49,15 +49,22 @@ def tiny_dataset(root) -> str:
 
 
 def tiny_spec(scene_xml: str, **train) -> runs.RunSpec:
-    """The tiny preset's run of the scene, with training settings changed."""
+    """The record of the tiny preset's run of the scene, with training settings changed (for
+    a collection: :func:`reneus_mi.runs.run_many`)."""
     spec = spec_of_scene(scene_xml, None)
     spec.config = replace(spec.config, **{f'train.{k}': v for k, v in train.items()})
     return spec
 
 
+def tiny_run(scene_xml: str, out, *, start: str = 'new', settings=(), **train) -> runs.Run:
+    """The tiny preset's run of the scene in ``out``, prepared as the command prepares it, with
+    training fields and ``settings`` (``PATH=VALUE``) changed."""
+    return runs.prepare(str(out), scene_xml, train=train, settings=settings, start=start)
+
+
 def new_trainer(scene_xml: str, out, resume: bool = False, **cfg) -> Trainer:
     """A trainer of the tiny run in ``out`` (from its checkpoint with ``resume``)."""
-    trainer = runs.open_spec(tiny_spec(scene_xml, **cfg), str(out), resume=resume).trainer()
+    trainer = tiny_run(scene_xml, out, start='continue' if resume else 'new', **cfg).trainer()
     os.makedirs(str(out), exist_ok=True)
     return trainer
 

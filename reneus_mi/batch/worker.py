@@ -2,7 +2,7 @@
 
 Every engine (the local pool, Ray, Slurm) calls the same function with the same
 task (a dict: the specimen, the batch folder, the threads, the variant); the run
-itself is :func:`reneus_mi.train.runs.prepare`'s. The worker takes the run's lock
+itself is :func:`reneus_mi.runs.prepare`'s. The worker takes the run's lock
 first and holds it throughout: a run held by another process is left alone
 (``busy``). Under the lock it
 
@@ -100,14 +100,14 @@ def _attempt(specimen, folder, files, redo: bool) -> tuple[str, str]:
 
 
 def specimen_run(specimen, files, folder):
-    """The specimen's :class:`~reneus_mi.train.runs.Run`: a capture captured into
+    """The specimen's :class:`~reneus_mi.runs.Run`: a capture captured into
     ``files.dataset`` (once), the scene XML written, the preset and settings applied; from its
     checkpoint where the folder holds one."""
     # Imported here, after run_task set the task's variant (see there).
     from reneus_mi.capture import pipeline, settings as capture_settings
     from reneus_mi.data import load_dataset
     from reneus_mi.data.scene_xml import write_scene
-    from reneus_mi.train import runs
+    from reneus_mi import runs
     os.makedirs(files.path, exist_ok=True)
     data = specimen.data
     if specimen.kind == 'capture':

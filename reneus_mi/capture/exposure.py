@@ -24,7 +24,7 @@ import numpy as np
 
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.register import board_levels, linear, predict_board
-from reneus_mi.config import RenderConfig
+from reneus_mi.render.config import RenderConfig
 from reneus_mi.utils.errors import ReneusError
 
 #: Pixels this share of the container's apparent size around its silhouette are left out of

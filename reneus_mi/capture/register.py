@@ -28,7 +28,7 @@ from scipy import ndimage, optimize
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.placement import local_mesh, pose_matrix, symmetry
 from reneus_mi.capture.settings import AUTO
-from reneus_mi.config import RenderConfig
+from reneus_mi.render.config import RenderConfig
 from reneus_mi.utils.errors import ReneusError
 
 #: A pixel disagrees with the bare board when it differs by this share of the board's contrast.

@@ -29,12 +29,11 @@ import xml.etree.ElementTree as ET
 import mitsuba as mi
 import numpy as np
 
-from reneus_mi.config import RenderConfig
 from reneus_mi.data.cameras import MITSUBA_FROM_OPENCV, has_skew
 from reneus_mi.data.dataset import CONTACT_GAP, Dataset
 from reneus_mi.data.images import write_image
 from reneus_mi.geometry.container import load_container, mesh_type, mitsuba_reads
-from reneus_mi.paper import AMBIENT, IOR
+from reneus_mi.paper import AMBIENT, D_RE, IOR
 from reneus_mi.geometry.container import absorbing_medium
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError
@@ -140,7 +139,7 @@ def hollow_depth(ds: Dataset) -> int:
     interface later than in a block, and the specimen's reflection in the far inner wall, which
     the photographs show, is then in the tree: on a simulated capture of a case (``fast``, 10
     minutes) D_re 2 ended in fog (Chamfer-L1 6.8 mm), 3 at 0.86 mm in one piece."""
-    return RenderConfig.max_depth + len(ds.inner)
+    return D_RE + len(ds.inner)
 
 
 def scene_xml(ds: Dataset, xml_dir: str, *, integrator: str = 'reneus', ambient: float | None = None,

@@ -34,11 +34,11 @@ import json
 import os
 import shutil
 import subprocess
+from importlib.metadata import version
 
 import numpy as np
 import trimesh
 
-import reneus_mi
 from reneus_mi.data import load_dataset
 from reneus_mi.geometry.mesh import decimated_glb, load_mesh
 from reneus_mi.geometry.surface import components
@@ -124,7 +124,7 @@ def export_run(run: str, out: str, *, identifiers: dict | None = None, creator: 
             'container': _container(config.get('data'), result),
             'training': {k: result.get(k) for k in ('iterations', 'seconds', 'psnr', 'components',
                                                     'stopped_by_budget', 'refined')},
-            'software': {'name': 'reneus-mi', 'version': reneus_mi.__version__, 'commit': _commit()},
+            'software': {'name': 'reneus-mi', 'version': version('reneus-mi'), 'commit': _commit()},
             'configuration': config,
         },
     }
@@ -283,7 +283,7 @@ def _container(data: str | None, result: dict) -> dict | None:
 
 def _commit() -> str | None:
     """The git commit of the installed package, when it is a checkout."""
-    root = os.path.dirname(os.path.dirname(os.path.abspath(reneus_mi.__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     try:
         out = subprocess.run(['git', '-C', root, 'rev-parse', 'HEAD'], capture_output=True, text=True, timeout=10)
     except (OSError, subprocess.TimeoutExpired):

@@ -42,6 +42,22 @@ class FieldConfig:
 
     kind: ClassVar[str] = ''
 
+    @classmethod
+    def of_kind(cls, name: str | None, where: str) -> type:
+        """The configuration of the field kind ``name``: a setting of this type names its kind
+        (:mod:`reneus_mi.utils.settings`)."""
+        from reneus_mi.fields import FIELD_CONFIGS   # the package imports this module: a cycle
+        if name in FIELD_CONFIGS:
+            return FIELD_CONFIGS[name]
+        kinds = ', '.join(FIELD_CONFIGS)
+        if isinstance(name, str) and (name.endswith('.npz') or os.sep in name or os.path.exists(name)):
+            if not os.path.isfile(name):
+                raise ReneusError(f'{where}={name!r}: no such file; expected a field kind ({kinds})')
+            raise ReneusError(f'{where}={name!r} is a saved field, and a setting takes a field kind ({kinds}); '
+                              f'render a saved field with python -m reneus_mi.render SCENE --field {name}, or '
+                              f'name it in a scene: <string name="field" value="{name}"/>')
+        raise ReneusError(f'{where}.kind={name!r}: unknown field kind; expected one of {kinds}')
+
     def setup(self) -> 'Field':
         """The field this configuration describes, freshly initialised."""
         from reneus_mi.fields import FIELDS   # the package imports this module: a cycle

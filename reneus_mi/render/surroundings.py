@@ -217,7 +217,7 @@ class Surroundings:
         return [ParamGroup('board', (BoardShading.NAME,), learning_rate * SHADING_LR_SCALE)]
 
     def param_groups(self, refine) -> list[ParamGroup]:
-        """The groups that ``refine`` (a :class:`~reneus_mi.config.RefineConfig`, the one these
+        """The groups that ``refine`` (a :class:`~reneus_mi.train.config.RefineConfig`, the one these
         surroundings were built with) asks for: the IOR (within its range), the pose, the light;
         each at its own rate from ``refine.after``."""
         groups = []
@@ -290,8 +290,8 @@ def shapes_bbox(shapes: list) -> mi.ScalarBoundingBox3f:
 
 def surroundings_of(scene: mi.Scene, render, refine) -> 'Surroundings':
     """The container, light and backdrop of ``scene`` as ``render`` (a
-    :class:`~reneus_mi.config.RenderConfig`) models them, with the parameters that ``refine`` (a
-    :class:`~reneus_mi.config.RefineConfig`) fits (the pose, the light), checked: every shape a
+    :class:`~reneus_mi.render.config.RenderConfig`) models them, with the parameters that ``refine`` (a
+    :class:`~reneus_mi.train.config.RefineConfig`) fits (the pose, the light), checked: every shape a
     smooth dielectric (the container's interfaces, :mod:`reneus_mi.render.interfaces`) or an
     area emitter."""
     shapes, backdrop, other = scene_parts(scene)

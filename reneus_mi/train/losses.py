@@ -32,7 +32,7 @@ def loss_dict(result, target: mi.Color3f, cfg, silhouette: mi.Float | None = Non
     its value, ``silhouette`` (``cfg.refine.silhouette_weight``).
 
     ``result`` is :meth:`ReNeuSIntegrator.render_rays`'s, ``target`` the photographs'
-    colours, ``cfg`` a :class:`~reneus_mi.config.TrainConfig`.
+    colours, ``cfg`` a :class:`~reneus_mi.train.config.TrainConfig`.
     """
     terms = {'color': Term(color_l1(result.color, target), 1.0),
              'trans': Term(transmittance_sparsity(result.sparsity), cfg.trans_weight),

@@ -28,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 import trimesh
 
-from reneus_mi.config import TrainConfig
+from reneus_mi.train.config import TrainConfig
 from reneus_mi.data import Dataset
 from reneus_mi.data.images import write_image
 from reneus_mi.fields import load_field
@@ -86,7 +86,7 @@ def training_bytes(batch_rays: int, samples_per_segment: int, segments: int) -> 
 def check_batch(batch_rays: int, model, what: str = '--batch-rays') -> None:
     """Refuse a ray batch whose samples exceed 32-bit indices or the machine's memory.
 
-    ``model`` is the integrator's :class:`~reneus_mi.config.ModelConfig` (samples per
+    ``model`` is the integrator's :class:`~reneus_mi.render.config.ModelConfig` (samples per
     segment, D_re).
     """
     samples = model.sampler.n_coarse + model.sampler.n_fine + 1

@@ -3,7 +3,7 @@
 Each field of the dataclass becomes ``--field-name``; the string literal that
 follows the field in the class body (its docstring) becomes the help text, so
 the documentation lives in one place. Values are typed by
-:func:`reneus_mi.config.text_value`, as every setting given as text is.
+:func:`reneus_mi.utils.settings.text_value`, as every setting given as text is.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import inspect
 import textwrap
 import typing
 
-from reneus_mi.config import text_value
+from reneus_mi.utils.settings import text_value
 from reneus_mi.utils.errors import ReneusError
 
 

@@ -23,6 +23,8 @@ from reneus_mi.utils.errors import ReneusError
 SUPPORTED = ('llvm_ad_rgb', 'cuda_ad_rgb')
 #: Targets larger than this are never expanded (Dr.Jit's default: 1M entries); see above.
 EXPAND_THRESHOLD = 0
+#: Called after each set_variant (:func:`on_set`).
+_ON_SET: list = []
 
 
 def default_variant() -> str:
@@ -35,16 +37,25 @@ def default_variant() -> str:
 
 
 def set_variant(name: str | None = None) -> str:
-    """Activate ``name`` (or the default) and register the plugins for it."""
+    """Activate ``name`` (or the default), then call the :func:`on_set` hooks."""
     name = name or default_variant()
     if name not in SUPPORTED:
         raise ReneusError(f"variant {name!r}: expected one of {', '.join(SUPPORTED)}")
     if mi.variant() != name:
         mi.set_variant(name)
     dr.set_expand_threshold(EXPAND_THRESHOLD)
-    from reneus_mi.plugins import register   # the plugins import the package: a cycle
-    register()
+    for hook in _ON_SET:
+        hook()
     return name
+
+
+def on_set(hook) -> None:
+    """Call ``hook()`` after every :func:`set_variant`, and now if a variant is set: the
+    package registers its Mitsuba plugins so (a plugin's class derives from the variant's own
+    classes), from above this layer."""
+    _ON_SET.append(hook)
+    if mi.variant() in SUPPORTED:
+        hook()
 
 
 def ensure_variant() -> str:

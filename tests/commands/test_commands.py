@@ -11,10 +11,10 @@ COMMANDS = {'optimize': 'reneus_mi.optimize', 'render': 'reneus_mi.render.__main
             'synth': 'reneus_mi.synth', 'capture': 'reneus_mi.capture.__main__',
             'batch': 'reneus_mi.batch.__main__', 'board': 'reneus_mi.board', 'colmap': 'reneus_mi.colmap',
             'simulate': 'reneus_mi.simulate', 'export': 'reneus_mi.export.__main__'}
-#: The package's top level: the commands that are modules, the configuration, and the paper's
-#: values that it and the data start from.
+#: The package's top level: the commands that are modules, the configuration, its presets, the
+#: runs built from them, and the paper's values that it and the data start from.
 TOP_LEVEL = {'optimize', 'extract', 'evaluate', 'scene', 'synth', 'board', 'colmap', 'simulate', 'config',
-             'presets', 'paper'}
+             'presets', 'runs', 'paper'}
 
 
 def test_console_scripts_are_the_commands_mains():

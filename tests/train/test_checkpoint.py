@@ -208,9 +208,9 @@ def test_loss_scaler_state_survives_a_checkpoint(scene_xml, tmp_path):
     trainer.scaler.scale_factor = mi.Float(1024.0)
     trainer.scaler.it = 7
     trainer.save_checkpoint()
-    resumed = new_trainer(scene_xml, tmp_path)
+    resumed = new_trainer(scene_xml, tmp_path / 'resumed')
     resumed.scaler = GradScaler(init_scale=mi.Float(2.0 ** 16))
-    checkpoint.restore(resumed.checkpoint_path, resumed.opt, resumed.names, resumed.scaler)
+    checkpoint.restore(trainer.checkpoint_path, resumed.opt, resumed.names, resumed.scaler)
     assert float(resumed.scaler.scale_factor[0]) == 1024.0 and resumed.scaler.it == 7
 
 

@@ -10,14 +10,12 @@ by Chamfer-L1 x100 (the paper's metric and post-processing).
 
 import pytest
 
-from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
 from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.data.synth import make_dataset
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.mesh import load_mesh
-from reneus_mi.train import runs
-from reneus_mi.train.runs import spec_of_scene
+from reneus_mi import runs
 
 ITERATIONS = 200
 
@@ -33,10 +31,9 @@ def reconstruct(folder, mode, iterations, preset):
     ds = load_dataset(str(folder / 'box'))
     xml = str(folder / f'scene_{preset}_{mode}.xml')
     write_scene(ds, xml, preset=preset, mode=mode)
-    spec = spec_of_scene(xml, None)
-    spec.config = replace(spec.config, **{'train.iterations': iterations, 'train.validate_every': 0,
-                                          'train.checkpoint_every': 0, 'train.mesh_resolution': 96})
-    trainer = runs.open_spec(spec, str(folder / f'run_{preset}_{mode}')).trainer()
+    trainer = runs.prepare(str(folder / f'run_{preset}_{mode}'), xml,
+                           train={'iterations': iterations, 'validate_every': 0, 'checkpoint_every': 0,
+                                  'mesh_resolution': 96}).trainer()
     gt = load_mesh(ds.gt_mesh)
     initial = chamfer(trainer.write_mesh(str(folder / f'initial_{preset}_{mode}.ply'), resolution=96), gt)
     result = trainer.run(progress=False)

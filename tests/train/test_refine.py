@@ -16,16 +16,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
 from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.data.synth import make_dataset, miscalibrated
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.render.pose import ContainerPose
-from reneus_mi.train import runs
+from reneus_mi import runs
 from reneus_mi.train.pixel_sampler import PixelSamplerConfig
-from reneus_mi.train.runs import spec_of_scene
 from reneus_mi.train.silhouette import SilhouetteLoss
 from reneus_mi.utils.errors import ReneusError
 
@@ -114,25 +112,22 @@ def _reconstruct(folder, quantity: str, refine: bool) -> tuple[float, dict, str]
         ds = miscalibrated(ds, str(folder), offset=OFFSET, scale=SCALE)
     xml = str(folder / f'scene_{quantity}.xml')
     write_scene(ds, xml, preset='fast', **settings)
-    spec = spec_of_scene(xml, str(folder / 'box'))
-    changes = {'train.iterations': ITERATIONS[quantity], 'train.batch_rays': 512, 'train.validate_every': 0,
-               'train.checkpoint_every': 0, 'train.mesh_resolution': 128, 'train.log_every': 50}
+    train = {'iterations': ITERATIONS[quantity], 'batch_rays': 512, 'validate_every': 0,
+             'checkpoint_every': 0, 'mesh_resolution': 128, 'log_every': 50}
     if refine:
-        changes.update({'ior': {'train.refine.ior': True}, 'ambient': {'train.refine.light': 'ambient'},
-                        'pose': {'train.refine.pose': True},
-                        'absorption': {'train.refine.absorption': True},
-                        'inner_ior': {'train.refine.inner_ior': True}}[quantity])
+        train.update({'ior': {'refine.ior': True}, 'ambient': {'refine.light': 'ambient'},
+                      'pose': {'refine.pose': True}, 'absorption': {'refine.absorption': True},
+                      'inner_ior': {'refine.inner_ior': True}}[quantity])
     if quantity == 'absorption':
         # The field's own refinement, from a grey guess (the fit before it, from none:
         # test_the_absorption_is_measured_before_the_field; with it this run ended 0.174, 0.368,
         # 0.711: it starts where the photographs' noise puts that fit, 10 % high).
-        changes['train.refine.media_steps'] = 0
+        train['refine.media_steps'] = 0
     if quantity == 'inner_ior':
         # Both runs, as before the error-driven batches (see ITERATIONS).
-        changes['train.pixels'] = PixelSamplerConfig(jitter=False, error_share=0.0)
-    spec.config = replace(spec.config, **changes)
+        train['pixels'] = PixelSamplerConfig(jitter=False, error_share=0.0)
     out = str(folder / f'run_{quantity}_{"refined" if refine else "fixed"}')
-    result = runs.open_spec(spec, out).train(progress=False)
+    result = runs.prepare(out, xml, str(folder / 'box'), train=train).train(progress=False)
     gt = load_mesh(load_dataset(str(folder / 'box')).gt_mesh)
     return chamfer(load_mesh(result['mesh']), gt)['chamfer'], result, out
 
@@ -194,9 +189,8 @@ def test_the_absorption_is_measured_before_the_field(amber_insect, guess):
           else miscalibrated(ds, str(amber_insect), absorption=MEDIA_GUESSES[guess]))
     xml = str(amber_insect / f'scene_{guess}.xml')
     write_scene(ds, xml, preset='fast')
-    spec = spec_of_scene(xml, str(amber_insect / 'box'))
-    spec.config = replace(spec.config, **{'train.refine.absorption': True})
-    trainer = runs.open_spec(spec, str(amber_insect / f'run_{guess}')).trainer()
+    trainer = runs.prepare(str(amber_insect / f'run_{guess}'), xml, str(amber_insect / 'box'),
+                           train={'refine.absorption': True}).trainer()
     trainer.fit_media()
     found = np.array(trainer.refined_values()['container.sigma_a'])
     print(f'from {guess}: {found} for {AMBER}')

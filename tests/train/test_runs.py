@@ -8,15 +8,15 @@ import os
 import numpy as np
 import pytest
 
-from reneus_mi.train import runs
-from tiny import tiny_spec
+from reneus_mi import runs
+from tiny import tiny_run, tiny_spec
 
 
 def test_config_json_rebuilds_the_same_run(scene_xml, tmp_path):
-    first = runs.open_spec(tiny_spec(scene_xml, iterations=3), str(tmp_path / 'a')).train(progress=False)
+    first = tiny_run(scene_xml, tmp_path / 'a', iterations=3).train(progress=False)
     spec = runs.read_spec(str(tmp_path / 'a'))
     assert spec.same_run(tiny_spec(scene_xml, iterations=3)) and spec.data_fingerprint['views'] == 12
-    again = runs.open_spec(spec, str(tmp_path / 'b')).train(progress=False)
+    again = runs.run_many({'b': spec}, str(tmp_path))['b']
     assert first['iterations'] == again['iterations'] == 3
 
     def losses(folder):
@@ -26,7 +26,7 @@ def test_config_json_rebuilds_the_same_run(scene_xml, tmp_path):
     assert np.allclose(losses('a'), losses('b'), rtol=1e-4)
     # Another seed draws other rays.
     spec.config.train.seed = 1
-    runs.open_spec(spec, str(tmp_path / 'c')).train(progress=False)
+    runs.run_many({'c': spec}, str(tmp_path))
     assert not np.allclose(losses('a'), losses('c'), rtol=1e-2)
 
 
@@ -45,7 +45,7 @@ def test_resume_on_a_moved_dataset_is_checked(scene_xml, tmp_path):
     from reneus_mi import optimize
     data = os.path.join(os.path.dirname(scene_xml), 'box')
     out = tmp_path / 'run'
-    runs.open_spec(tiny_spec(scene_xml, iterations=2), str(out)).train(progress=False)
+    tiny_run(scene_xml, out, iterations=2).train(progress=False)
     moved = tmp_path / 'moved'
     shutil.copytree(data, moved)
     assert runs.prepare(str(out), data=str(moved), start='resume').spec.data == str(moved)

@@ -11,15 +11,13 @@ import pytest
 from scipy.spatial import cKDTree
 import trimesh
 
-from reneus_mi.config import replace
 from reneus_mi.data import load_dataset
 from reneus_mi.data.objects import insect_limbs
 from reneus_mi.data.scene_xml import write_scene
 from reneus_mi.data.synth import make_dataset
 from reneus_mi.geometry.mesh import load_mesh
-from reneus_mi.train import runs
+from reneus_mi import runs
 from reneus_mi.train.pixel_sampler import PixelSamplerConfig
-from reneus_mi.train.runs import spec_of_scene
 
 ITERATIONS = 400
 #: 1 % of the unit sphere: 0.3 of a pixel's footprint at 96 pixels.
@@ -38,10 +36,8 @@ def limb_recall(folder, pixels: PixelSamplerConfig, name: str) -> tuple[float, f
     ds = load_dataset(str(folder / 'box'))
     xml = str(folder / f'scene_{name}.xml')
     write_scene(ds, xml, preset='demo')
-    spec = spec_of_scene(xml, None)
-    spec.config = replace(spec.config, **{'train.iterations': ITERATIONS, 'train.validate_every': 0,
-                                          'train.checkpoint_every': 0, 'train.pixels': pixels})
-    result = runs.open_spec(spec, str(folder / f'run_{name}')).trainer().run(progress=False)
+    result = runs.prepare(str(folder / f'run_{name}'), xml, train={
+        'iterations': ITERATIONS, 'validate_every': 0, 'checkpoint_every': 0, 'pixels': pixels}).trainer().run(progress=False)
     gt, mesh = load_mesh(ds.gt_mesh), load_mesh(result['mesh'])
     truth = trimesh.sample.sample_surface(gt, 20000, seed=0)[0]
     made = trimesh.sample.sample_surface(mesh, 20000, seed=0)[0]

@@ -11,11 +11,11 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from reneus_mi.config import TrainConfig, replace
-from reneus_mi.train import runs
+from reneus_mi.config import TrainConfig
+from reneus_mi import runs
 from reneus_mi.train.trainer import next_batch, training_bytes
 from reneus_mi.utils.errors import ReneusError
-from tiny import new_trainer, tiny_spec
+from tiny import new_trainer, tiny_run
 
 
 def test_traverse_shows_the_trained_weights(scene_xml, tmp_path):
@@ -43,16 +43,12 @@ def test_training_steps_reuse_their_kernels(scene_xml, tmp_path, budget, refine)
     runs 20x slower)."""
     from reneus_mi.data.scene_xml import write_scene
     from reneus_mi.data import load_dataset
-    from reneus_mi.train.runs import spec_of_scene
     xml = str(tmp_path / 'fast.xml')
     write_scene(load_dataset(os.path.join(os.path.dirname(scene_xml), 'box')), xml, preset='fast')
-    spec = spec_of_scene(xml, None)
     # A refining run's tree takes a new width every step only with batches of a realistic size.
-    spec.config = replace(spec.config, **{'train.batch_rays': 1024 if refine else 64 if not budget else 256,
-                                          'train.anneal_end': 50, 'train.sample_budget': budget,
-                                          'model.sampler.occupancy_update_every': 1000,
-                                          'train.refine.ior': refine, 'train.refine.after': 0})
-    trainer = runs.open_spec(spec, str(tmp_path / 'run')).trainer()
+    trainer = runs.prepare(str(tmp_path / 'run'), xml, settings=['model.sampler.occupancy_update_every=1000'],
+                           train={'batch_rays': 1024 if refine else 64 if not budget else 256, 'anneal_end': 50,
+                                  'sample_budget': budget, 'refine.ior': refine, 'refine.after': 0}).trainer()
 
     sizes = (256, 512, 768)
     for i in range(8):
@@ -133,9 +129,8 @@ def test_rays_through_the_container_edges_are_left_out_of_the_colour_loss(scene_
     pixels whose ray misses it still count)."""
     colour, drawn_by_error = {}, {}
     for margin in (0.0, 100.0):
-        spec = tiny_spec(scene_xml)
-        spec.config = replace(spec.config, **{'model.render.edge_margin': margin})
-        trainer = runs.open_spec(spec, str(tmp_path / f'margin_{margin:g}')).trainer()
+        trainer = tiny_run(scene_xml, tmp_path / f'margin_{margin:g}',
+                           settings=[f'model.render.edge_margin={margin}']).trainer()
         colour[margin] = trainer.step().terms['color']
         drawn_by_error[margin] = int(np.sum(np.array(trainer.pixels.error) > 0.0))
     assert colour[100.0] < 0.1 * colour[0.0] and drawn_by_error[100.0] < 0.1 * drawn_by_error[0.0]

@@ -1,6 +1,6 @@
 """The ``reneus`` integrator's XML properties, read into the configuration and written back.
 
-Every property is a field of :class:`~reneus_mi.config.ModelConfig` under the same name
+Every property is a field of :class:`~reneus_mi.render.config.ModelConfig` under the same name
 (``max_depth`` is ``model.render.max_depth``, ``n_coarse`` is ``model.sampler.n_coarse``,
 ``field_hidden`` is ``model.field.hidden``), over the named ``preset``; a few more say where
 the field lives and what it is fitted to (:data:`OTHER`). :func:`read_properties` reads them
@@ -15,12 +15,13 @@ from dataclasses import dataclass
 
 import mitsuba as mi
 
-from reneus_mi.config import ModelConfig, RenderConfig, field_config_class, typed_value
-from reneus_mi.fields import FIELD_CONFIGS, Field, load_field
-from reneus_mi.presets import preset
+from reneus_mi.fields import FIELD_CONFIGS, Field, FieldConfig, load_field
 from reneus_mi.geometry.frame import FieldFrame
+from reneus_mi.presets import preset
+from reneus_mi.render.config import ModelConfig, RenderConfig
 from reneus_mi.render.ray_samplers import SamplerConfig
 from reneus_mi.utils.errors import ReneusError
+from reneus_mi.utils.settings import typed_value
 
 #: Properties that are not settings of the model.
 OTHER = ('preset', 'field', 'field_center', 'field_scale', 'dataset')
@@ -84,7 +85,7 @@ def _read_field(props: mi.Properties, model: ModelConfig):
     if spec not in FIELD_CONFIGS:
         raise ReneusError(f"reneus integrator: field={spec!r}; expected one of "
                           f"{', '.join(FIELD_CONFIGS)} or the path of a saved field (.npz)")
-    cls = field_config_class(spec, 'field')
+    cls = FieldConfig.of_kind(spec, 'field')
     base = model.field if model.field.kind == spec else cls()
     hints = typing.get_type_hints(cls)
     known = {f.name for f in dataclasses.fields(cls)}

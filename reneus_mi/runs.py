@@ -162,7 +162,7 @@ def prepare(out: str, scene: str | Callable[[], str] | None = None, data: str | 
 def spec_of_scene(scene: str, data: str | None = None, *, train: dict | None = None,
                   settings: Sequence[str] = ()) -> RunSpec:
     """The record of a run of ``scene`` (as :func:`prepare` makes it), for a collection
-    (:func:`run_many`) or a trainer driven by hand (:func:`open_spec`)."""
+    (:func:`run_many`)."""
     return _spec(scene, load_scene(scene), data, train, settings)
 
 
@@ -184,15 +184,6 @@ def _with(config: ReconstructionConfig, train: dict | None, settings: Sequence[s
     """``config`` with the ``train`` fields by name, then the ``settings`` (``PATH=VALUE``)."""
     config = replace(config, **{f'train.{k}': v for k, v in (train or {}).items()})
     return with_settings(config, settings)[0]
-
-
-def open_spec(spec: RunSpec, out: str, *, resume: bool = False) -> Run:
-    """The run of a record in folder ``out``, the folder not checked: what :func:`prepare` and
-    :func:`run_many` build once they have checked it, and what tests and benchmarks that drive
-    a trainer step by step take."""
-    folder = RunFolder(out)
-    return _build(spec, folder, load_scene(folder.scene_to_load(spec.scene) if resume else spec.scene),
-                  resume=resume)
 
 
 def _open(spec: RunSpec, folder: RunFolder, *, resume: bool, moved: str | None = None) -> Run:
