@@ -94,10 +94,7 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
         np.linalg.norm(e_next, axis=2) * np.linalg.norm(e_prev, axis=2), 1e-30)
     weight = np.arccos(np.clip(cos_corner, -1.0, 1.0)) * solid[:, None]
 
-    size = float(np.ptp(v, axis=0).max()) if len(v) else 1.0
-    _, weld = np.unique(np.round(v / (_WELD * max(size, 1e-30))).astype(np.int64), axis=0,
-                        return_inverse=True)
-    weld = weld.ravel()
+    weld = _weld(v)
     # Every ordered pair (a, b) of corners at one welded vertex, a and b included.
     w = weld[f].ravel()
     order = np.argsort(w, kind='stable')
@@ -137,14 +134,25 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
 
 def crease_edges(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> np.ndarray:
     """The edges (M,2,3) of a Mitsuba mesh as loaded where its faces meet at more than
-    ``crease_angle`` degrees (a box's twelve edges; a jar's rims), its vertices welded to about
-    :data:`_WELD` of its size (trimesh's rounding, not :func:`corner_normals`' own weld)."""
+    ``crease_angle`` degrees (a box's twelve edges; a jar's rims), its vertices welded as
+    :func:`corner_normals` welds them."""
     params = mi.traverse(shape)
-    mesh = trimesh.Trimesh(np.array(params['vertex_positions'], np.float64).reshape(-1, 3),
-                           np.array(params['faces']).reshape(-1, 3), process=False)
-    mesh.merge_vertices(digits_vertex=max(0, int(-np.log10(_WELD * max(float(mesh.extents.max()), 1e-30)))))
+    v = np.array(params['vertex_positions'], np.float64).reshape(-1, 3)
+    weld = _weld(v)
+    welded = np.zeros((weld.max() + 1, 3))
+    welded[weld] = v
+    mesh = trimesh.Trimesh(welded, weld[np.array(params['faces']).reshape(-1, 3)], process=False)
     sharp = mesh.face_adjacency_angles > np.radians(crease_angle)
     return mesh.vertices[mesh.face_adjacency_edges[sharp]]
+
+
+def _weld(v: np.ndarray) -> np.ndarray:
+    """Each vertex's index among the vertices welded by position, to :data:`_WELD` of the
+    mesh's size (a mesh written with one vertex per face corner is then connected)."""
+    size = float(np.ptp(v, axis=0).max()) if len(v) else 1.0
+    _, weld = np.unique(np.round(v / (_WELD * max(size, 1e-30))).astype(np.int64), axis=0,
+                        return_inverse=True)
+    return weld.ravel()
 
 
 def shading_normals(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> mi.Float:
