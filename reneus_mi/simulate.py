@@ -7,10 +7,10 @@ The photographs and ``capture.json`` go to PHOTOS, the ground truth to TRUTH
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 
 from reneus_mi.capture.simulate import Rig, simulate
+from reneus_mi.utils import cli
 from reneus_mi.utils.errors import exit_on_error
 
 
@@ -19,13 +19,9 @@ def main(argv=None) -> int:
                                      description="A photographer's capture, rendered by Mitsuba's path tracer.")
     parser.add_argument('photos', metavar='PHOTOS', help='folder for the photographs and capture.json (new or empty)')
     parser.add_argument('--truth', required=True, help='folder for the ground truth (new or empty)')
-    kinds = {'int': int, 'float': float, 'str': str, 'float | None': float}
-    for f in dataclasses.fields(Rig):
-        if f.type in kinds:
-            parser.add_argument('--' + f.name.replace('_', '-'), type=kinds[f.type],
-                                default=f.default, help=f'(default: {f.default})')
+    cli.add_arguments(parser, Rig, title='the capture')
     args = parser.parse_args(argv)
-    rig = Rig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(Rig) if hasattr(args, f.name)})
+    rig = Rig(**cli.given_arguments(Rig, args))
     with exit_on_error(RuntimeError):
         result = simulate(rig, args.photos, args.truth)
     print(f"wrote {len(result['views'])} photographs to {args.photos}, the truth to {args.truth}")

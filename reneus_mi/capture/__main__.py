@@ -11,7 +11,7 @@ import cv2
 
 from reneus_mi.capture import photos, settings as settings_mod, writer
 from reneus_mi.capture.pipeline import run
-from reneus_mi.utils import guards, interrupt
+from reneus_mi.utils import cli, guards, interrupt
 from reneus_mi.utils.errors import exit_on_error
 
 
@@ -39,7 +39,8 @@ def main(argv=None) -> int:
     parser.add_argument('--crop-to-coverage', action='store_true',
                         help="crop the dataset's images to the part of the frame the board covered, where the "
                              'lens model is measured, not extrapolated (report.json: camera.coverage)')
-    settings_mod.add_arguments(parser)
+    cli.add_arguments(parser, settings_mod.CaptureSettings, as_text=True,
+                      title=f'capture settings (or in {settings_mod.CAPTURE_FILE} beside the photographs)')
     args = parser.parse_args(argv)
     interrupt.leaving(lambda: _left(args.output))
     with exit_on_error(RuntimeError, cv2.error):

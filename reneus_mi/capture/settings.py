@@ -7,7 +7,9 @@ small file beside the photographs, ``capture.json``, with the same names::
      "dictionary": "DICT_4X4_100", "container": "box", "size_mm": "50x35x25", "ior": 1.5}
 
 A setting given both ways must agree: a measured size is not something to override
-silently. Every field's docstring is its command-line help (:func:`add_arguments`).
+silently. Every field's docstring is its command-line help
+(:func:`reneus_mi.utils.cli.add_arguments`, as text: :func:`resolve` parses the options and
+the file alike).
 """
 from __future__ import annotations
 
@@ -19,7 +21,6 @@ import typing
 
 from reneus_mi.data.checks import IOR_EXPECTED, valid_ior
 from reneus_mi.geometry.shapes import CONTAINERS
-from reneus_mi.utils.cli import field_docs
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import load_json
 
@@ -206,17 +207,6 @@ def _parse(name: str, value, where: str):
         return number
     except (TypeError, ValueError):
         raise ReneusError(f"{where}: {name}={value!r}; expected {'a text' if base is str else 'a number'}") from None
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """One option per setting (``--square-mm``), its docstring as help; none has a default
-    here, so that the capture file can give it."""
-    docs = field_docs(CaptureSettings)
-    group = parser.add_argument_group(f'capture settings (or in {CAPTURE_FILE} beside the photographs)')
-    for f in dataclasses.fields(CaptureSettings):
-        default = '' if f.default is None else f' (default: {f.default})'
-        group.add_argument('--' + _flag(f.name), dest=f.name, default=None, metavar=f.name.upper(),
-                           help=docs[f.name] + default)
 
 
 def resolve(args: argparse.Namespace | dict, photos: str, settings_file: str | None = None) -> CaptureSettings:

@@ -32,34 +32,46 @@ def field_docs(cls) -> dict[str, str]:
 
 
 def add_arguments(parser: argparse.ArgumentParser, cls, *, default_note: str | None = None,
-                  prefix: str = '') -> None:
+                  prefix: str = '', title: str | None = None, as_text: bool = False) -> None:
     """Add one option per field of ``cls``, its docstring as help, the default said once.
 
     A nested configuration adds its fields under its name: ``TrainConfig.refine.ior``
     is ``--refine-ior``. ``default_note`` replaces the default in the help where
-    another source (e.g. a preset) provides it.
+    another source (e.g. a preset) provides it. An option not given is None, so that what was
+    given can be told from the defaults (:func:`given_arguments`). ``as_text``: each option
+    keeps its text, for the caller to parse with the values of a file (a capture's settings).
     """
     docs = field_docs(cls)
     hints = typing.get_type_hints(cls)
-    group = parser.add_argument_group(f'{cls.__name__} options')
+    group = parser.add_argument_group(title or f'{cls.__name__} options')
     for f in dataclasses.fields(cls):
-        kind = hints[f.name]
+        kind = _given(hints[f.name])
         path = prefix + f.name
         if dataclasses.is_dataclass(kind):
-            add_arguments(parser, kind, default_note=default_note, prefix=path + '.')
+            add_arguments(parser, kind, default_note=default_note, prefix=path + '.', as_text=as_text)
             continue
         option = '--' + path.replace('.', '-').replace('_', '-')
-        help_text = f'{docs.get(f.name, "")} (default: {default_note or f.default})'
-        if kind is bool:
+        default = default_note or ('' if f.default is None else f.default)
+        help_text = ' '.join(filter(None, (docs.get(f.name), default != '' and f'(default: {default})')))
+        if as_text:
+            group.add_argument(option, dest=path, default=None, metavar=f.name.upper(), help=help_text)
+        elif kind is bool:
             group.add_argument(option, dest=path, action=argparse.BooleanOptionalAction, default=None,
                                help=help_text)
         elif typing.get_origin(kind) is tuple:
             items = typing.get_args(kind)
-            group.add_argument(option, dest=path, type=_typed(items[0], path), nargs=len(items), default=None,
+            group.add_argument(option, dest=path, type=_typed(items[0], path),
+                               nargs='+' if Ellipsis in items else len(items), default=None,
                                metavar=items[0].__name__.upper(), help=help_text)
         else:
             group.add_argument(option, dest=path, type=_typed(kind, path), default=None,
                                metavar=kind.__name__.upper(), help=help_text)
+
+
+def _given(kind):
+    """The type of a value given for a field of type ``kind`` (``float | None``: float)."""
+    args = [a for a in typing.get_args(kind) if a is not type(None)]
+    return args[0] if type(None) in typing.get_args(kind) and len(args) == 1 else kind
 
 
 def _typed(kind, path: str):
