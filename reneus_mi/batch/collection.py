@@ -182,27 +182,27 @@ def _from_row(row: dict, where: str, base: str, preset: str, settings: list[str]
         raise ReneusError(f"{where}: no 'data'; expected the specimen's dataset or capture folder")
     data = os.path.normpath(os.path.join(base, str(row.pop('data'))))
     name = str(row.pop('name', os.path.basename(data)))
-    s = Specimen(name, data, kind_of(data) or 'dataset', str(row.pop('preset', preset)), list(settings))
+    specimen = Specimen(name, data, kind_of(data) or 'dataset', str(row.pop('preset', preset)), list(settings))
     if 'ior' in row:
         value = row.pop('ior')
         try:
-            s.ior = float(value)
+            specimen.ior = float(value)
         except (TypeError, ValueError):
-            s.ior = float('nan')
-        if not valid_ior(s.ior):
+            specimen.ior = float('nan')
+        if not valid_ior(specimen.ior):
             raise ReneusError(f'{where}: ior={value!r}; expected {IOR_EXPECTED}')
     for key, value in row.items():
         if key in IDENTIFIERS:
-            s.identifiers[key] = str(value)
+            specimen.identifiers[key] = str(value)
         elif '.' in key:
-            s.settings.append(f'{key}={_text(value)}')
+            specimen.settings.append(f'{key}={_text(value)}')
         elif key in capture_names:
-            s.capture[key] = value
+            specimen.capture[key] = value
         else:
             raise ReneusError(f"{where}: unknown column {key!r}; expected name, data, preset, ior, "
                               f"{', '.join(IDENTIFIERS)}, a capture setting (size_mm, squares, ...) or a "
                               "setting's dotted path (train.iterations)")
-    return _checked(s, where)
+    return _checked(specimen, where)
 
 
 def _text(value) -> str:

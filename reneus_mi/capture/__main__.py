@@ -48,8 +48,8 @@ def main(argv=None) -> int:
             # Every photograph's warning, even where two come from one line of code.
             warnings.simplefilter('always')
             photos.check_folder(args.photos)
-            s = settings_mod.resolve(args, args.photos, args.settings)
-            report = run(s, args.photos, args.output, crop=args.crop_to_coverage)
+            settings = settings_mod.resolve(args, args.photos, args.settings)
+            report = run(settings, args.photos, args.output, crop=args.crop_to_coverage)
     if not args.quiet:
         print(writer.table(report))
     print(f"wrote {args.output}: {len(report['views'])} views, container at x={report['container']['pose'][0]:.2f} mm, "

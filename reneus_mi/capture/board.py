@@ -29,9 +29,8 @@ MIN_CORNERS = 8
 #: A marker is where the board puts it if its corners lie within this fraction of a
 #: marker's side from the homography fitted to all markers of the photograph.
 LAYOUT_TOLERANCE = 0.25
-#: Half-size of the corner refinement's window, as a share of a square's side in the image: the
-#: median corner error against the truth on the simulated capture was 0.09 px at 0.15 (4 px),
-#: 0.11-0.14 px at 0.07 and 0.3; a window fitted to each corner's white ring, 0.12 px.
+#: Half-size of the corner refinement's window, as a share of a square's side in the image
+#: (docs/constants.md).
 REFINE_WINDOW = 0.15
 #: Share of a photograph's markers that must fit the board's layout.
 LAYOUT_INLIERS = 0.6

@@ -29,10 +29,8 @@ from reneus_mi.utils.errors import ReneusError
 
 #: A corner is an outlier beyond this many robust standard deviations (1.4826 MAD) ...
 OUTLIER_SIGMAS = 3.0
-#: ... and beyond this many pixels of the photograph. Oblique views' corners are found less
-#: precisely (up to 1 px against the truth where the median is 0.09 px); left in with
-#: 4 sigmas and a 0.5 px floor they moved the principal point of the simulated capture
-#: 1.5 px and every camera's rotation 0.15 degree (0.7 px, 0.07 degree with these values).
+#: ... and beyond this many pixels of the photograph: oblique views' corners are found less
+#: precisely, and left in they move the principal point (docs/constants.md).
 MIN_OUTLIER_PX = 0.1
 #: A photograph is left out when its RMS error exceeds this many times the median one's ...
 VIEW_RMS_FACTOR = 3.0

@@ -12,8 +12,9 @@ capture folders.
    ``--max-size`` or ``--downscale``, at the working size (:mod:`~reneus_mi.data.undistort`;
    memory checked before reading).
 4. Find the container (:mod:`~reneus_mi.capture.register`), or take ``--container-pose``.
-5. Calibrate again without the corners seen through the container, undistort again, refine
-   the container's place from the first one.
+5. Calibrate again without the corners seen through the container, undistort again to the
+   dataset's camera (:func:`dataset_frame`), refine the container's place from the first one:
+   each pass is :func:`locate`.
 6. Measure each photograph's exposure, C_out and the print's brightness
    (:mod:`~reneus_mi.capture.exposure`) and normalise the exposures.
 7. Write an overlay per photograph, then the dataset (:mod:`~reneus_mi.capture.writer`;
@@ -37,10 +38,11 @@ from reneus_mi.capture import board as board_mod
 from reneus_mi.capture import photos, settings as settings_mod, writer
 from reneus_mi.capture.board import Board
 from reneus_mi.capture.crops import WORK_MAX_SIZE, CroppedViews, container_windows
-from reneus_mi.capture.calibrate import EXTRAPOLATION_WARN_PX, Calibration, calibrate, coverage, crop_to_coverage
-from reneus_mi.capture.exposure import measure
+from reneus_mi.capture.calibrate import (EXTRAPOLATION_WARN_PX, Calibration, Coverage, calibrate, coverage,
+                                        crop_to_coverage)
+from reneus_mi.capture.exposure import Light, measure
 from reneus_mi.capture.placement import board_mesh
-from reneus_mi.capture.register import Outline, register
+from reneus_mi.capture.register import Outline, Registration, register
 from reneus_mi.data.images import reduction, scaled_size
 from reneus_mi.data.undistort import output_size, pinhole_K, undistort
 from reneus_mi.utils import guards
@@ -120,10 +122,11 @@ def load_views(reduced: dict, cal: Calibration, out_size, K_out) -> tuple[np.nda
     return np.stack(images), np.stack(valid)
 
 
-def seen_through(cal: Calibration, s: settings_mod.CaptureSettings, pose):
+def seen_through(cal: Calibration, settings: settings_mod.CaptureSettings, pose):
     """``exclude`` for :func:`calibrate`: corners inside the container's projection (with the
     lens, in the photograph) or within :data:`EXCLUSION_MARGIN_PX` of it."""
-    hull = np.asarray(board_mesh(s.container, s.size_mm, pose, edge=s.edge_mm).convex_hull.vertices)
+    hull = np.asarray(board_mesh(settings.container, settings.size_mm, pose,
+                                 edge=settings.edge_mm).convex_hull.vertices)
     by_name = {v.name: i for i, v in enumerate(cal.views)}
 
     def exclude(name, pixels):
@@ -135,10 +138,10 @@ def seen_through(cal: Calibration, s: settings_mod.CaptureSettings, pose):
     return exclude
 
 
-def _warn_uncovered(names, valid, K, c2w, s, pose) -> None:
+def _warn_uncovered(names, valid, K, c2w, settings, pose) -> None:
     """Warn where the container's projection (the training mask) reaches pixels that the
     undistorted photograph does not cover."""
-    outline = Outline(s.container, s.size_mm, K, c2w, s.edge_mm)
+    outline = Outline(settings.container, settings.size_mm, K, c2w, settings.edge_mm)
     for v, name in enumerate(names):
         mask = np.zeros(valid[v].shape, np.uint8)
         cv2.fillConvexPoly(mask, np.round(outline.polygon(pose, v) - 0.5).astype(np.int32), 1)
@@ -147,15 +150,16 @@ def _warn_uncovered(names, valid, K, c2w, s, pose) -> None:
                           'those pixels are black in the dataset')
 
 
-def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: bool = False) -> dict:
-    """The whole capture (see the module docstring); returns what the report holds. ``crop``:
-    the dataset's images cropped to the part of the frame the board covered."""
+def run(settings: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: bool = False) -> dict:
+    """The whole capture (see the module docstring); returns what the report holds. ``settings``: the
+    settings as stated (a size measured from the photographs replaces the stated one in the
+    dataset). ``crop``: the dataset's images cropped to the part of the frame the board covered."""
     start = time.perf_counter()
     out = guards.check_output_dir(out, inputs=[photos_dir], allow=writer.OUTPUTS, what='dataset folder')
-    board = Board.from_settings(s)
+    board = Board.from_settings(settings)
     shots = photos.orientations(photos.list_photos(photos_dir))
     size = shots[0].size
-    width, height, scale = output_size(*size, max_size=s.max_size, downscale=s.downscale)
+    width, height, scale = output_size(*size, max_size=settings.max_size, downscale=settings.downscale)
     work = reduction(width, height, WORK_MAX_SIZE)
     kept = scaled_size(width, height, work)
     photos.check_memory(len(shots), size, kept, kept=kept, workers=photos.WORKERS)
@@ -166,60 +170,17 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
     left_out = {p.name: NO_CORNERS for p in shots if p.name not in detections}
     cal = calibrate(board, detections, size)
     left_out.update(cal.dropped)
-    K_work = pinhole_K(cal.K, scale * work)
-    images, valid = load_views(reduced, cal, kept, K_work)
-    c2w = np.stack([v.c2w for v in cal.views])
-    names = [v.name for v in cal.views]
-    try:
-        reg = register(images, valid, K_work, c2w, board, s.container, s.size_mm, pose=s.container_pose,
-                       edge=s.edge_mm)
-    except ReneusError as e:
-        # The user must see why: the overlays, with what each photograph showed.
-        reg_failed = getattr(e, 'registration', None)
-        writer.write_overlays(out, images, K_work, c2w, board, cal, s, measured=getattr(e, 'measured', None),
-                               pose=reg_failed.pose if reg_failed else None)
-        raise ReneusError(f'{e} (overlays in {os.path.join(out, "overlays")})') from None
-    given = s
-    if reg.size_measured:
-        s = dataclasses.replace(s, size_mm=reg.best_size)
-    # Corners seen through the glass leave the calibration; the place is refined from the first.
-    exclude = seen_through(cal, s, reg.pose)
-    cal = calibrate(board, {n: detections[n] for n in names}, size, exclude=exclude)
-    left_out.update({n: f'{r} (once the corners seen through the container were left out)'
-                     for n, r in cal.dropped.items()})
-    if len(cal.views) < MIN_DATASET_VIEWS:
-        why = '; '.join(f'{n}: {r}' for n, r in list(left_out.items())[:2])
-        raise ReneusError(f'{os.path.abspath(photos_dir)}: {len(cal.views)} photographs can be used '
-                          f'({len(left_out)} left out{": " + why if why else ""}); expected at least '
-                          f'{MIN_DATASET_VIEWS}: the container seen all around, 40-80 photographs in three '
-                          'rings (docs/capture.md)')
-    cover = coverage(board, cal)
-    K_out = pinhole_K(cal.K, scale)
-    if crop:
-        (width, height), K_out, box = crop_to_coverage(cal, cover, K_out, (width, height))
-        cover = dataclasses.replace(cover, crop=box)
-        kept = scaled_size(width, height, work)
-    elif cover.extrapolated_px > EXTRAPOLATION_WARN_PX:
-        warnings.warn(f'the board covered {cover.share:.0%} of the frame; beyond it the lens model is '
-                      f'uncertain by up to {cover.extrapolated_px:.1f} px (at x={cover.worst[0]:.0f}, '
-                      f'y={cover.worst[1]:.0f}), and so are the dataset\'s pixels there: take photographs '
-                      'with the board in the frame\'s corners too, or crop to what it covered (--crop-to-coverage)')
-    K_work = np.diag([work, work, 1.0]) @ K_out
-    names = [v.name for v in cal.views]
-    images, valid = load_views(reduced, cal, kept, K_work)
-    c2w = np.stack([v.c2w for v in cal.views])
-    reg = register(images, valid, K_work, c2w, board, s.container, given.size_mm, pose=s.container_pose,
-                   start=reg.pose, edge=s.edge_mm)
-    if reg.size_measured:
-        s = dataclasses.replace(s, size_mm=reg.best_size)
-    light = measure(images, valid, K_work, c2w, board, reg.measured, names)
-    _warn_uncovered(names, valid, K_work, c2w, s, reg.pose)
-    # The overlays first: a transforms.json, written last, says that the dataset is whole.
-    writer.write_overlays(out, images, K_work, c2w, board, cal, s, measured=reg.measured, pose=reg.pose,
-                           residuals=reg.view_residuals)
-    del images, valid
-    hull = np.asarray(board_mesh(s.container, s.size_mm, reg.pose, edge=s.edge_mm).convex_hull.vertices)
-    windows = container_windows(hull, K_out, c2w, (width, height))
+    # The first pass only places the container: its views are undistorted by the first calibration.
+    first = locate(board, reduced, cal, kept, pinhole_K(cal.K, scale * work), settings, out).reg
+    cal = recalibrate(board, detections, size, cal, measured(settings, first), first.pose, left_out, photos_dir)
+    frame = dataset_frame(board, cal, pinhole_K(cal.K, scale), (width, height), work, crop)
+    second = locate(board, reduced, cal, frame.kept, np.diag([work, work, 1.0]) @ frame.K, settings, out,
+                    start=first.pose)
+    found = measured(settings, second.reg)
+    light = check_and_overlay(out, board, cal, found, second)
+    reg, c2w = second.reg, second.c2w
+    del second   # the working copies' views: the crops are decoded from the photographs
+    hull = np.asarray(board_mesh(found.container, found.size_mm, reg.pose, edge=found.edge_mm).convex_hull.vertices)
     by_name = {p.name: p for p in shots}
 
     def lens_of(v):
@@ -227,8 +188,98 @@ def run(s: settings_mod.CaptureSettings, photos_dir: str, out: str, *, crop: boo
         name = cal.views[v].name
         rgb = reduced[name] if work == 1.0 else photos.decode(by_name[name])
         return rgb, np.diag([rgb.shape[1] / cal.width, rgb.shape[0] / cal.height, 1.0]) @ cal.K, cal.dist
-    views = CroppedViews(windows, K_out, lens_of, light.factors)
-    report = writer.write(out, s, board, cal, K_out, (width, height), views, reg, light, left_out, cover,
-                          photos.camera_exif(shots[0].path), given=given)
+    views = CroppedViews(container_windows(hull, frame.K, c2w, frame.size), frame.K, lens_of, light.factors)
+    report = writer.write(out, found, board, cal, frame.K, frame.size, views, reg, light, left_out, frame.cover,
+                          photos.camera_exif(shots[0].path), given=settings)
     report['seconds'] = time.perf_counter() - start
     return report
+
+
+@dataclasses.dataclass
+class Located:
+    """A pass over the calibrated views: each undistorted at the working size (intrinsics
+    ``K``), and the container found in them."""
+    images: np.ndarray
+    valid: np.ndarray
+    K: np.ndarray
+    c2w: np.ndarray
+    names: list[str]
+    reg: Registration
+
+
+@dataclasses.dataclass
+class Frame:
+    """The dataset's pinhole camera (``K`` at ``size``), the working copies' size (``kept``,
+    the dataset's reduced by ``work``) and the board's coverage of the frame."""
+    size: tuple[int, int]
+    K: np.ndarray
+    kept: tuple[int, int]
+    cover: Coverage
+
+
+def locate(board: Board, reduced: dict, cal: Calibration, kept, K_work,
+           settings: settings_mod.CaptureSettings, out: str, start=None) -> Located:
+    """Undistort the calibrated views to the working camera and find the container in them
+    (from ``start``, the place an earlier pass found). A failure writes the overlays, with what
+    each photograph showed, and names them: the user must see why."""
+    images, valid = load_views(reduced, cal, kept, K_work)
+    c2w = np.stack([v.c2w for v in cal.views])
+    try:
+        reg = register(images, valid, K_work, c2w, board, settings.container, settings.size_mm,
+                       pose=settings.container_pose, start=start, edge=settings.edge_mm)
+    except ReneusError as e:
+        failed = getattr(e, 'registration', None)
+        writer.write_overlays(out, images, K_work, c2w, board, cal, settings,
+                              measured=getattr(e, 'measured', None), pose=failed.pose if failed else None)
+        raise ReneusError(f'{e} (overlays in {os.path.join(out, "overlays")})') from None
+    return Located(images, valid, K_work, c2w, [v.name for v in cal.views], reg)
+
+
+def measured(settings: settings_mod.CaptureSettings, reg: Registration) -> settings_mod.CaptureSettings:
+    """The settings with the container's size as the photographs measured it, where they did."""
+    return dataclasses.replace(settings, size_mm=reg.best_size) if reg.size_measured else settings
+
+
+def recalibrate(board: Board, detections: dict, size, cal: Calibration,
+                settings: settings_mod.CaptureSettings, pose, left_out: dict, photos_dir: str) -> Calibration:
+    """``cal``'s photographs calibrated again without the corners seen through the container
+    at ``pose``; those it drops join ``left_out``. Refuse a capture left with too few."""
+    again = calibrate(board, {v.name: detections[v.name] for v in cal.views}, size,
+                      exclude=seen_through(cal, settings, pose))
+    left_out.update({n: f'{r} (once the corners seen through the container were left out)'
+                     for n, r in again.dropped.items()})
+    if len(again.views) < MIN_DATASET_VIEWS:
+        why = '; '.join(f'{n}: {r}' for n, r in list(left_out.items())[:2])
+        raise ReneusError(f'{os.path.abspath(photos_dir)}: {len(again.views)} photographs can be used '
+                          f'({len(left_out)} left out{": " + why if why else ""}); expected at least '
+                          f'{MIN_DATASET_VIEWS}: the container seen all around, 40-80 photographs in three '
+                          'rings (docs/capture.md)')
+    return again
+
+
+def dataset_frame(board: Board, cal: Calibration, K_out: np.ndarray, size, work: float, crop: bool) -> Frame:
+    """The dataset's camera: the whole frame (warned where the board left the lens model
+    extrapolated), or with ``crop`` the part of it the board covered."""
+    cover = coverage(board, cal)
+    if crop:
+        size, K_out, box = crop_to_coverage(cal, cover, K_out, size)
+        cover = dataclasses.replace(cover, crop=box)
+    elif cover.extrapolated_px > EXTRAPOLATION_WARN_PX:
+        warnings.warn(f'the board covered {cover.share:.0%} of the frame; beyond it the lens model is '
+                      f'uncertain by up to {cover.extrapolated_px:.1f} px (at x={cover.worst[0]:.0f}, '
+                      f'y={cover.worst[1]:.0f}), and so are the dataset\'s pixels there: take photographs '
+                      'with the board in the frame\'s corners too, or crop to what it covered (--crop-to-coverage)')
+    return Frame(tuple(size), K_out, scaled_size(*size, work), cover)
+
+
+def check_and_overlay(out: str, board: Board, cal: Calibration, settings: settings_mod.CaptureSettings,
+                      located: Located) -> Light:
+    """The photographs' exposure and light measured, pixels beyond them warned of, and an
+    overlay written per photograph (before the dataset: a ``transforms.json``, written last,
+    says that the dataset is whole)."""
+    reg = located.reg
+    light = measure(located.images, located.valid, located.K, located.c2w, board, reg.measured, located.names)
+    _warn_uncovered(located.names, located.valid, located.K, located.c2w, settings, reg.pose)
+    writer.write_overlays(out, located.images, located.K, located.c2w, board, cal, settings,
+                          measured=reg.measured, pose=reg.pose, residuals=reg.view_residuals)
+    return light

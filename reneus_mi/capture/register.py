@@ -44,8 +44,7 @@ TRUNCATION = 0.25
 #: the board in the photograph.
 MIN_KNOWN = 0.5
 #: The stated outer size is refused when the size that fits the photographs best differs by
-#: more than this along an axis (mm). On the simulated capture (640x480, 16 views) the best
-#: size was within 0.06, 0.38 and 0.12 mm of the block's 50x35x25 whatever size was stated.
+#: more than this along an axis (mm; docs/constants.md).
 SIZE_TOLERANCE_MM = 1.0
 #: Rounds of place and size when the size is measured (--size-mm auto): the first from a
 #: cube of the silhouettes' width, the second from the first's size.

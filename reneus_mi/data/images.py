@@ -37,9 +37,8 @@ WRITE_EXTENSIONS = ('.exr', '.png')
 #: Bytes per pixel of a dataset while it loads: its RGB images as held (:func:`stored`,
 #: 16-bit at most) and again stacked (2 x 6), its masks, the container's projection. With
 #: :data:`DECODE_BYTES_PER_PIXEL` (the one photograph being decoded: its samples, the RGBA
-#: float32 conversion and its copies, at its own size) an upper bound of the peak that
-#: ``python bench/memory.py`` measured: 33.0 B/pixel for 32 PNGs of 512x512 (checked at
-#: 33.8), 50.3 for 2 of 2048x2048 (checked at 60.0).
+#: float32 conversion and its copies, at its own size) an upper bound of the measured peak
+#: (docs/constants.md).
 LOAD_BYTES_PER_PIXEL = 32
 DECODE_BYTES_PER_PIXEL = 56
 #: The option that reduces the photographs as they load (optimize, scene).

@@ -251,11 +251,11 @@ class Trainer:
 
     def step(self) -> StepStats:
         """One optimisation step; raises TrainingError before a bad update is applied."""
-        cfg, it, s = self.cfg, self.iteration, self.schedule_step()
+        cfg, it, schedule = self.cfg, self.iteration, self.schedule_step()
         start = time.perf_counter()
         batch = self.batch
         ray, target = self.pixels.batch(it, batch)
-        self.integrator.begin_step(StepState(step=it, schedule=s, cos_anneal_ratio=cfg.cos_anneal_ratio(s),
+        self.integrator.begin_step(StepState(step=it, schedule=schedule, cos_anneal_ratio=cfg.cos_anneal_ratio(schedule),
                                              seed=step_seed(cfg.seed, it, JITTER),
                                              refining=self.pixels.uniform_rays() if self.refined else None))
         result = self.integrator.render_rays(self.scene, ray)
@@ -290,9 +290,9 @@ class Trainer:
             if not bool(ok[0]):
                 raise TrainingError(f'step {it}: the gradient of {key!r} is not finite; stopped '
                                     f'before updating; {self.kept()}')
-        lr = cfg.learning_rate_at(s)
+        lr = cfg.learning_rate_at(schedule)
         # Every group follows the run's schedule at its own peak rate, from its start step.
-        self.opt.set_learning_rate({self.keys[name]: 0.0 if s < group.start else
+        self.opt.set_learning_rate({self.keys[name]: 0.0 if schedule < group.start else
                                     lr * (group.learning_rate / cfg.learning_rate)
                                     for group in self.groups for name in group.keys})
         if self.scaler:
@@ -304,7 +304,7 @@ class Trainer:
                 for name in group.keys:
                     key = self.keys[name]
                     self.opt[key] = dr.clip(self.opt[key], *group.bounds)
-        cap = cfg.sharpness_cap(s)
+        cap = cfg.sharpness_cap(schedule)
         if cap < math.inf and 'variance' in self.keys:
             key = self.keys['variance']
             self.opt[key] = dr.minimum(self.opt[key], self.field.variance_of(cap))
@@ -371,9 +371,9 @@ class Trainer:
             # Stratum midpoints for the render; the step's state comes back whatever happens.
             state, self.integrator.state = self.integrator.state, StepState(step=self.iteration)
             try:
-                for s in range(0, dr.width(index), RENDER_CHUNK):
+                for first in range(0, dr.width(index), RENDER_CHUNK):
                     chunk = dr.gather(mi.UInt32, index,
-                                      dr.arange(mi.UInt32, s, min(s + RENDER_CHUNK, dr.width(index))))
+                                      dr.arange(mi.UInt32, first, min(first + RENDER_CHUNK, dr.width(index))))
                     r = self.integrator.render_rays(self.scene, self.pixels.rays(chunk))
                     colors.append(np.array(r.color).T)
                     normals.append(np.array(dr.normalize(r.normal)).T)
