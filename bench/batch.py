@@ -36,7 +36,7 @@ LOADED = 1.5
 
 def dataset(folder: str, views: int, res: int) -> str:
     """The synthetic dataset's folder (rendered once)."""
-    from reneus_mi.data.synth import make_dataset
+    from reneus_mi.data.synthetic import make_dataset
     data = os.path.join(folder, 'box')
     if not os.path.isfile(os.path.join(data, 'transforms.json')):
         make_dataset('statuette', folder, views=views, res=res, spp=32, subsets=('box',))

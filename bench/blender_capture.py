@@ -2,7 +2,7 @@
 in a glass block standing on a printed ChArUco board, to test ``python -m reneus_mi.capture``
 on photographs the project did not render itself.
 
-It is the Cycles twin of ``reneus_mi/capture/simulate.py`` and writes the same layout: the
+It is the Cycles twin of ``reneus_mi/capture/simulation.py`` and writes the same layout: the
 photographer's folder ``PHOTOS`` (``IMG_0001.jpg`` ... and ``capture.json``, what
 :class:`reneus_mi.capture.settings.CaptureSettings` reads) and, apart, ``TRUTH``
 (``truth.json`` with simulate.py's keys, plus the renderer and its seconds;
@@ -727,7 +727,7 @@ def block_outline(c2w: np.ndarray, K_cv: np.ndarray, dist, shape: str, size_mm, 
 
 def detect_corners(gray: np.ndarray, board, aruco, square_over_marker: float):
     """ChArUco corner ids and positions (reneus-mi convention), refined to the saddles as
-    reneus_mi.capture.board does (cornerSubPix, a window of 0.15 square)."""
+    reneus_mi.capture.charuco does (cornerSubPix, a window of 0.15 square)."""
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     marker_corners, marker_ids, _ = cv2.aruco.ArucoDetector(aruco, params).detectMarkers(gray)
@@ -832,7 +832,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(
         prog='bench/blender_capture.py',
         description='Render a museum-style capture (a specimen in a glass block on a ChArUco board) '
-                    "with Blender Cycles, as reneus_mi.capture.simulate does with Mitsuba (run with the bpy venv's Python).")
+                    "with Blender Cycles, as reneus_mi.capture.simulation does with Mitsuba (run with the bpy venv's Python).")
     parser.add_argument('photos', metavar='PHOTOS', help='folder for the photographs and capture.json (new or empty)')
     parser.add_argument('--truth', required=True, help='folder for the ground truth (new or empty)')
     parser.add_argument('--specimen', choices=list(SPECIMENS), default='ant')

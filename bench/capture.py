@@ -4,7 +4,7 @@ megapixels, and a run's memory on the dataset it made.
     python bench/capture.py [--megapixels 6 12 24] [--views 48] [--max-size 960 | 0] [--train-steps 20]
                             [--doc docs/capture.md]
 
-The generator's capture (``reneus_mi.capture.simulate``: Mitsuba's ``path``, the insect in a
+The generator's capture (``reneus_mi.capture.simulation``: Mitsuba's ``path``, the insect in a
 50x35x25 mm block on a 12x9 board, lens distortion, exposure drift, noise, JPEG) is rendered
 once at 960x640 and each photograph scaled up (bicubic) to the size of a camera of each
 megapixel count, 3:2, written as a JPEG of quality 92 as a camera writes it: the pixels are
@@ -31,7 +31,7 @@ import time
 import cv2
 import numpy as np
 
-from reneus_mi.capture.simulate import Rig, simulate
+from reneus_mi.capture.simulation import Rig, simulate
 from reneus_mi.utils.io import write_section
 
 #: Load average above which the figures are marked as from a loaded machine.

@@ -4,7 +4,7 @@
                             [--iterations N] [--out runs/compare_small] [--doc docs]
 
 For each object it renders (or reuses) the synthetic dataset with both subsets
-(:func:`reneus_mi.data.synth.make_dataset`, Mitsuba's path tracer), then fits
+(:func:`reneus_mi.data.synthetic.make_dataset`, Mitsuba's path tracer), then fits
 
 ==================  ========  ==========  ====================
 method              subset    mode        λ1 (``trans_weight``)
@@ -109,7 +109,7 @@ def reconstruction_config(cfg: dict, model: dict | None = None, **train):
 # ------------------------------------------------------------------ running
 def dataset(obj: str, out: str, cfg: dict) -> str:
     """The folder of ``obj``'s dataset (both subsets), rendered once."""
-    from reneus_mi.data.synth import make_dataset
+    from reneus_mi.data.synthetic import make_dataset
     folder = os.path.join(out, obj, 'data')
     meta = os.path.join(folder, 'synth.json')
     want = cfg['data']

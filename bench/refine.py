@@ -4,10 +4,10 @@
                            [--iterations 600] [--views 24] [--res 64] [--out runs/refine] [--doc docs]
 
 For each object a dataset is rendered with Mitsuba's path tracer (glass box,
-IOR 1.45, ambient 0.8, :func:`reneus_mi.data.synth.make_dataset`). Each quantity is
+IOR 1.45, ambient 0.8, :func:`reneus_mi.data.synthetic.make_dataset`). Each quantity is
 then set wrong as a calibration would leave it: the IOR taken as 1.40; the
 container shifted by (2, -1, 0.5) % of its size and scaled by 1.02
-(:func:`reneus_mi.data.synth.miscalibrated`); the ambient taken as 0.7. The ``fast``
+(:func:`reneus_mi.data.synthetic.miscalibrated`); the ambient taken as 0.7. The ``fast``
 preset reconstructs the object three times: with the true values, with the
 wrong value held fixed (the paper's method) and refining it
 (``--refine-ior``, ``--refine-pose``, ``--refine-light ambient``). Reported:
@@ -40,7 +40,7 @@ def specs(obj: str, data: str, out: str, quantities, iterations: int) -> dict:
     from reneus_mi.data import load_dataset
     from reneus_mi.runs import spec_of_scene
     from reneus_mi.data.scene_xml import write_scene
-    from reneus_mi.data.synth import miscalibrated
+    from reneus_mi.data.synthetic import miscalibrated
     train = {'train.iterations': iterations, 'train.batch_rays': 512, 'train.validate_every': 0,
              'train.checkpoint_every': 100, 'train.mesh_resolution': 128, 'train.log_every': 50}
     truth = load_dataset(data)
@@ -105,7 +105,7 @@ def main(argv=None) -> int:
     from reneus_mi.geometry.mesh import load_mesh
     from reneus_mi.utils.io import write_section
     from reneus_mi.runs import run_many
-    from reneus_mi.data.synth import make_dataset
+    from reneus_mi.data.synthetic import make_dataset
     out = os.path.abspath(args.out)
     start = time.perf_counter()
     rows = []

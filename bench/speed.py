@@ -5,7 +5,7 @@
                           [--views 48] [--res 128] [--object insect] [--out runs/speed] [--doc docs]
                           [--set train.sample_budget=49152 model.render.rr_threshold=0.2 ...]
 
-On one synthetic scene of the generator (``reneus_mi.data.synth``: the object in
+On one synthetic scene of the generator (``reneus_mi.data.synthetic``: the object in
 its glass block, Mitsuba's path tracer, rendered once into ``OUT/data``) each
 preset trains in a fresh process for ``--minutes`` of wall clock, counted from
 its first step with the kernels compiled (the compilation is timed apart: the
@@ -46,7 +46,7 @@ def device() -> str:
 
 
 def dataset(args) -> str:
-    from reneus_mi.data.synth import make_dataset
+    from reneus_mi.data.synthetic import make_dataset
     folder = os.path.join(args.out, 'data')
     if not os.path.isfile(os.path.join(folder, 'box', 'transforms.json')):
         print(f'rendering {args.object}, {args.views} views at {args.res} px into {folder}', flush=True)

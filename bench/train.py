@@ -35,7 +35,7 @@ def child(args) -> None:
     import reneus_mi  # noqa: F401
     from reneus_mi import runs
     from reneus_mi.data import load_dataset
-    from reneus_mi.data.synth import demo_scene
+    from reneus_mi.data.synthetic import demo_scene
     from reneus_mi.data.scene_xml import write_scene
 
     scene_path = demo_scene(args.data)

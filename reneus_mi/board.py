@@ -1,6 +1,6 @@
 """Write a ChArUco board to print: ``python -m reneus_mi.board -o board.png``.
 
-The board (:mod:`reneus_mi.capture.board`) the capture finds in every photograph; print it
+The board (:mod:`reneus_mi.capture.charuco`) the capture finds in every photograph; print it
 at 100 % and measure a square (docs/capture.md).
 """
 from __future__ import annotations
@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from reneus_mi.capture.board import Board, write_print
+from reneus_mi.capture.charuco import Board, write_print
 from reneus_mi.capture.settings import CaptureSettings, numbers
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import exit_on_error

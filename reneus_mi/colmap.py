@@ -2,14 +2,14 @@
 --images IMAGES_DIR --container MESH --ior 1.5 -o DATASET_DIR [--max-size N | --downscale F]``.
 
 For photographs posed by structure from motion on their surroundings instead of a board
-(:mod:`reneus_mi.capture.colmap`); needs ``pip install 'reneus-mi[colmap]'``.
+(:mod:`reneus_mi.capture.colmap_model`); needs ``pip install 'reneus-mi[colmap]'``.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 
-from reneus_mi.capture.colmap import convert
+from reneus_mi.capture.colmap_model import convert
 from reneus_mi.utils.errors import exit_on_error
 
 

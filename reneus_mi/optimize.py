@@ -18,7 +18,7 @@ import os
 import sys
 
 from reneus_mi.config import TrainConfig
-from reneus_mi.data.synth import demo_scene
+from reneus_mi.data.synthetic import demo_scene
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi import runs

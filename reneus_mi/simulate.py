@@ -2,14 +2,14 @@
 --truth TRUTH [--specimen insect] [--views 16]``.
 
 The photographs and ``capture.json`` go to PHOTOS, the ground truth to TRUTH
-(:mod:`reneus_mi.capture.simulate`: the set-up, the camera's degradations, what each file holds).
+(:mod:`reneus_mi.capture.simulation`: the set-up, the camera's degradations, what each file holds).
 """
 from __future__ import annotations
 
 import argparse
 import sys
 
-from reneus_mi.capture.simulate import Rig, simulate
+from reneus_mi.capture.simulation import Rig, simulate
 from reneus_mi.utils import cli
 from reneus_mi.utils.errors import exit_on_error
 

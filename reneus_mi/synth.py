@@ -1,7 +1,7 @@
 """Render a synthetic dataset with Mitsuba's path tracer: ``python -m reneus_mi.synth insect -o DIR``.
 
 The protocol, the files written and the options' meaning are those of
-:func:`reneus_mi.data.synth.make_dataset`.
+:func:`reneus_mi.data.synthetic.make_dataset`.
 """
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import os
 import sys
 
 from reneus_mi.data.objects import OBJECTS
-from reneus_mi.data.synth import (DEFAULT_MAX_DEPTH, DEFAULT_SPP, LIQUID_IOR, SUBSETS, SYNTH_CONTAINERS, WALL,
+from reneus_mi.data.synthetic import (DEFAULT_MAX_DEPTH, DEFAULT_SPP, LIQUID_IOR, SUBSETS, SYNTH_CONTAINERS, WALL,
                                   make_dataset)
 from reneus_mi.paper import AMBIENT, IOR
 from reneus_mi.utils import interrupt

@@ -4,7 +4,7 @@ path tracer on a capture's dataset.
 Mitsuba's path tracer renders a glass block (50x35x25 mm) with an insect inside standing on a
 12x9 ChArUco board, 16 views at 640x480 on three elevations with four portrait shots, lens
 distortion, an off-centre principal point, exposure jitter, noise and JPEG
-(:mod:`reneus_mi.capture.simulate`). About 40 s on two cores.
+(:mod:`reneus_mi.capture.simulation`). About 40 s on two cores.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import os
 
 import numpy as np
 
-from reneus_mi.capture.simulate import Rig, simulate
+from reneus_mi.capture.simulation import Rig, simulate
 
 #: The capture of the tests: the generator's defaults, fewer samples (the noise is the sensor's).
 RIG = Rig(spp=16)

@@ -37,7 +37,7 @@ def tiny_dataset(root) -> str:
     """Render (once per pytest session folder) the tiny dataset; return its scene XML."""
     from reneus_mi.data import load_dataset
     from reneus_mi.data.scene_xml import write_scene
-    from reneus_mi.data.synth import make_dataset
+    from reneus_mi.data.synthetic import make_dataset
     root = str(root)
     data = os.path.join(root, 'box')
     if not os.path.isfile(os.path.join(data, 'transforms.json')):

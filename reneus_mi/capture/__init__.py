@@ -7,6 +7,6 @@ on it (:mod:`~reneus_mi.capture.register`); the photographs are undistorted to p
 cameras (:mod:`~reneus_mi.data.undistort`), their exposures normalised and the ambient
 light measured (:mod:`~reneus_mi.capture.exposure`). Everything is in the board's frame, in
 millimetres. ``python -m reneus_mi.capture PHOTOS -o DATASET`` (:mod:`reneus_mi.capture.__main__`);
-:mod:`~reneus_mi.capture.simulate` renders captures to test it; :mod:`~reneus_mi.capture.colmap`
+:mod:`~reneus_mi.capture.simulation` renders captures to test it; :mod:`~reneus_mi.capture.colmap_model`
 reads poses from a COLMAP model instead.
 """

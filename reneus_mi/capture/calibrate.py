@@ -8,7 +8,7 @@ it without what it cannot explain:
 - a corner whose reprojection error exceeds :data:`OUTLIER_SIGMAS` robust standard
   deviations of all corners' errors (and :data:`MIN_OUTLIER_PX`): corners seen through the
   glass are displaced by refraction, a detection can be wrong;
-- a photograph with fewer than :data:`~reneus_mi.capture.board.MIN_CORNERS` corners left, or
+- a photograph with fewer than :data:`~reneus_mi.capture.charuco.MIN_CORNERS` corners left, or
   whose RMS error exceeds :data:`VIEW_RMS_FACTOR` times the median photograph's: left out of
   the dataset with a warning naming it and why.
 
@@ -23,7 +23,7 @@ import warnings
 import cv2
 import numpy as np
 
-from reneus_mi.capture.board import MIN_CORNERS, Board, Detection
+from reneus_mi.capture.charuco import MIN_CORNERS, Board, Detection
 from reneus_mi.data.undistort import opencv_K
 from reneus_mi.utils.errors import ReneusError
 

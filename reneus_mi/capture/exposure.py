@@ -22,7 +22,7 @@ import warnings
 import cv2
 import numpy as np
 
-from reneus_mi.capture.board import Board
+from reneus_mi.capture.charuco import Board
 from reneus_mi.capture.register import board_levels, linear, predict_board
 from reneus_mi.render.config import RenderConfig
 from reneus_mi.utils.errors import ReneusError

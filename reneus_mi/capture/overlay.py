@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from reneus_mi.capture.board import Board
+from reneus_mi.capture.charuco import Board
 from reneus_mi.capture.placement import pose_matrix
 from reneus_mi.data.undistort import opencv_K
 from reneus_mi.utils.io import atomic_path

@@ -3,7 +3,7 @@ reneus_mi.capture PHOTOS -o DATASET`` (:mod:`reneus_mi.capture.__main__`) and of
 capture folders.
 
 1. Read every photograph once, in parallel, whole or refused by name
-   (:mod:`~reneus_mi.capture.photos`): find the board in it (:mod:`~reneus_mi.capture.board`)
+   (:mod:`~reneus_mi.capture.photos`): find the board in it (:mod:`~reneus_mi.capture.charuco`)
    and keep a copy reduced to the working size (the dataset's, at most
    :data:`~reneus_mi.capture.crops.WORK_MAX_SIZE`); refuse, in one line, a capture where no
    photograph shows the board, or shows another dictionary or layout.
@@ -34,9 +34,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from reneus_mi.capture import board as board_mod
+from reneus_mi.capture import charuco
 from reneus_mi.capture import photos, settings as settings_mod, writer
-from reneus_mi.capture.board import Board
+from reneus_mi.capture.charuco import Board
 from reneus_mi.capture.crops import WORK_MAX_SIZE, CroppedViews, container_windows
 from reneus_mi.capture.calibrate import (EXTRAPOLATION_WARN_PX, Calibration, Coverage, calibrate, coverage,
                                         crop_to_coverage)
@@ -90,7 +90,7 @@ def check_board(board: Board, detections: dict, shots: list[photos.Photo], reduc
     folder = os.path.dirname(shots[0].path)
     if not any(len(d.marker_ids) for d in detections.values()):
         first = shots[0].name
-        other = board_mod.other_dictionary(photos.grey(reduced[first]), board)
+        other = charuco.other_dictionary(photos.grey(reduced[first]), board)
         hint = (f'; {first} shows markers of {other} (check --dictionary)'
                 if other else ' (is the board in the pictures? check --dictionary)')
         raise ReneusError(f'{folder}: no ArUco marker of {board.dictionary} in any of the {len(shots)} '
@@ -100,7 +100,7 @@ def check_board(board: Board, detections: dict, shots: list[photos.Photo], reduc
         raise ReneusError(f'{folder}: marker id {beyond} seen, but a {board.columns}x{board.rows} board has '
                           f'ids 0-{board.n_markers - 1}; expected the board as stated (check --squares)')
     fits = [board.layout_fit(d) for d in detections.values() if len(d.marker_ids) >= 4]
-    if fits and np.median(fits) < board_mod.LAYOUT_INLIERS:
+    if fits and np.median(fits) < charuco.LAYOUT_INLIERS:
         raise ReneusError(f'{folder}: the markers do not lie where a {board.describe()} board puts them '
                           f'(median {np.median(fits):.0%} fit); expected the board as printed (check '
                           '--squares, and whether it was made by OpenCV before 4.6)')

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from scipy import ndimage, optimize
 
-from reneus_mi.capture.board import Board
+from reneus_mi.capture.charuco import Board
 from reneus_mi.capture.placement import local_mesh, pose_matrix, symmetry
 from reneus_mi.capture.settings import AUTO
 from reneus_mi.render.config import RenderConfig

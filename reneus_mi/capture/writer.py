@@ -30,7 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from reneus_mi.capture import overlay
-from reneus_mi.capture.board import Board
+from reneus_mi.capture.charuco import Board
 from reneus_mi.capture.calibrate import Calibration, Coverage
 from reneus_mi.capture.crops import CroppedViews
 from reneus_mi.capture.photos import WORKERS

@@ -12,7 +12,7 @@ import pytest
 from capture_data import path_render
 from reneus_mi.capture import __main__ as capture_command, pipeline, settings
 from reneus_mi.capture.crops import CROP_MARGIN
-from reneus_mi.capture.simulate import Rig, distort_image
+from reneus_mi.capture.simulation import Rig, distort_image
 from reneus_mi.data import load_dataset
 from reneus_mi.data.undistort import undistort
 
@@ -166,7 +166,7 @@ def test_cameras_written_as_opencv_projects_them(which, shot, request):
     moved back by their windows' corners, put the board's corners where the photographs
     undistorted to the report's camera show them (cropped to the coverage or not); the written
     images are those photographs' windows."""
-    from reneus_mi.capture.board import Board
+    from reneus_mi.capture.charuco import Board
     from reneus_mi.data.cameras import OPENGL_FROM_OPENCV
     made = request.getfixturevalue(which)
     with open(made['out'] / 'transforms.json') as f:
@@ -318,7 +318,7 @@ def test_result_says_millimetres_and_a_coloured_glb_lies_beside(reconstructed):
 def test_board_corners_where_the_pattern_puts_them():
     """Corners of a blurred, upright and mirrored board image, at known places to 0.02 px
     (OpenCV 4.11's own ChArUco corners were half a pixel off)."""
-    from reneus_mi.capture.board import Board
+    from reneus_mi.capture.charuco import Board
     board = Board(6, 5, 20.0, 15.0)
     ppm, pad = 4.0, 40
     image = cv2.GaussianBlur(np.pad(board.pattern(ppm), pad, constant_values=255), (0, 0), 1.2)

@@ -12,7 +12,7 @@ import trimesh
 from capture_data import path_render
 from reneus_mi import scene as scene_command
 from reneus_mi.capture import __main__ as capture_command
-from reneus_mi.capture.simulate import Rig, simulate
+from reneus_mi.capture.simulation import Rig, simulate
 from reneus_mi.data import load_dataset
 
 #: The tests' rig, hollow: walls 3 mm thick. 64 samples: a hollow container's floor seen

@@ -721,7 +721,7 @@ def test_capture_beyond_memory_names_the_flags(shots, tmp_path, monkeypatch):
 
 def test_capture_photograph_without_corners_is_left_out(shots, tmp_path):
     """One warning line naming the photograph; the others go on."""
-    from reneus_mi.capture.board import Board
+    from reneus_mi.capture.charuco import Board
     photos = photo_copies(shots, tmp_path / 'photos', 2, blank=1)
     shots = capture_photos.orientations(capture_photos.list_photos(str(photos)))
     with pytest.warns(UserWarning) as caught:
@@ -1154,7 +1154,7 @@ def test_ctrl_c_during_synth_leaves_nothing(tmp_path):
     """Harmful before: the partial folder made the same command refuse."""
     out = tmp_path / 'data'
     args = ['sphere', '-o', out, '--views', 2, '--res', 8, '--spp', 1]
-    proc = start('synth', *args, tmp_path=tmp_path, pause=('reneus_mi.data.synth:render_view', SPIN))
+    proc = start('synth', *args, tmp_path=tmp_path, pause=('reneus_mi.data.synthetic:render_view', SPIN))
     wait_for(proc, (tmp_path / 'paused').exists)
     assert ctrl_c(proc) == f'interrupted: {out} was not written (nothing of it is left); the same command starts again'
     assert sorted(os.listdir(tmp_path)) == ['hook', 'paused']

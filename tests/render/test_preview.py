@@ -52,7 +52,7 @@ def test_model_seen_through_the_container_where_the_photograph_shows_it(tmp_path
     two silhouettes, each against the empty container by the same camera); seen without the
     glass it lands elsewhere and at another size. Measured: 0.909 through the glass, 0.331 not."""
     from reneus_mi.data import load_dataset
-    from reneus_mi.data.synth import make_dataset
+    from reneus_mi.data.synthetic import make_dataset
     from reneus_mi.render.preview import render_view
     make_dataset('statuette', str(tmp_path / 'data'), views=2, res=64, spp=256, subsets=('box',))
     ds = load_dataset(str(tmp_path / 'data' / 'box'))

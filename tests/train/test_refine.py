@@ -18,7 +18,7 @@ import trimesh
 
 from reneus_mi.data import load_dataset
 from reneus_mi.data.scene_xml import write_scene
-from reneus_mi.data.synth import make_dataset, miscalibrated
+from reneus_mi.data.synthetic import make_dataset, miscalibrated
 from reneus_mi.geometry.chamfer import chamfer
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.render.pose import ContainerPose

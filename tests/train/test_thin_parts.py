@@ -14,7 +14,7 @@ import trimesh
 from reneus_mi.data import load_dataset
 from reneus_mi.data.objects import insect_limbs
 from reneus_mi.data.scene_xml import write_scene
-from reneus_mi.data.synth import make_dataset
+from reneus_mi.data.synthetic import make_dataset
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi import runs
 from reneus_mi.train.pixel_sampler import PixelSamplerConfig

@@ -29,14 +29,14 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.capture.board import Board
+from reneus_mi.capture.charuco import Board
 from reneus_mi.capture.placement import interfaces, local_mesh, pose_matrix
 from reneus_mi.capture.settings import CAPTURE_FILE, CaptureSettings, to_json
 from reneus_mi.data.cameras import look_at
 from reneus_mi.data.dataset import CONTACT_GAP
 from reneus_mi.data.objects import load_object
 from reneus_mi.data.scene_xml import sensor_dict
-from reneus_mi.data.synth import write_object
+from reneus_mi.data.synthetic import write_object
 from reneus_mi.geometry.container import shading_mesh
 from reneus_mi.geometry.shapes import write_container
 from reneus_mi.geometry.mesh import mitsuba_mesh

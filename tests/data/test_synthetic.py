@@ -11,12 +11,12 @@ from scipy.ndimage import binary_dilation
 import mitsuba as mi
 
 import reneus_mi  # noqa: F401  (sets the variant)
-from reneus_mi.data import load_dataset, objects, synth
+from reneus_mi.data import load_dataset, objects, synthetic
 from reneus_mi.data.masks import container_masks
 from reneus_mi.data.images import as_float
 from reneus_mi.synth import main as synth_main
 
-BACKGROUND = synth.AMBIENT ** (1.0 / synth.GAMMA)
+BACKGROUND = synthetic.AMBIENT ** (1.0 / synthetic.GAMMA)
 
 
 @pytest.mark.parametrize('name', sorted(objects.OBJECTS))
@@ -68,11 +68,11 @@ def test_bad_object_is_a_clear_error(tmp_path, capsys):
         synth_main(['nope', '-o', str(tmp_path)])
     assert str(exit_info.value.code).startswith('error: ') and 'nope' in str(exit_info.value.code)
     with pytest.raises(ValueError, match='subsets'):
-        synth.make_dataset('sphere', str(tmp_path), subsets=('glass',))
+        synthetic.make_dataset('sphere', str(tmp_path), subsets=('glass',))
 
 
 def test_cameras_on_sphere_frame_the_unit_sphere():
-    K, c2w = synth.sample_cameras(200, 64, seed=3)
+    K, c2w = synthetic.sample_cameras(200, 64, seed=3)
     np.testing.assert_allclose(np.linalg.norm(c2w[:, :3, 3], axis=1), 5.0)
     # Looking at the origin, a proper rotation, and the unit sphere's outline
     # exactly touches the image border.
@@ -82,14 +82,14 @@ def test_cameras_on_sphere_frame_the_unit_sphere():
     np.testing.assert_allclose(32.0 / K[:, 0, 0], np.tan(np.arcsin(0.2)))
     # Uniform on the sphere: the mean direction is near zero.
     assert np.linalg.norm(c2w[:, :3, 3].mean(axis=0)) / 5.0 < 0.15
-    np.testing.assert_array_equal(synth.sample_cameras(200, 64, seed=3)[1], c2w)
+    np.testing.assert_array_equal(synthetic.sample_cameras(200, 64, seed=3)[1], c2w)
 
 
 @pytest.fixture(scope='module')
 def rendered(tmp_path_factory):
     out = tmp_path_factory.mktemp('statuette')
     # The statuette has one arm raised: a mirrored or flipped camera shows.
-    return synth.make_dataset('statuette', str(out), views=4, res=40, spp=32, seed=1, write=False)
+    return synthetic.make_dataset('statuette', str(out), views=4, res=40, spp=32, seed=1, write=False)
 
 
 def _iou(a, b):
@@ -129,7 +129,7 @@ def test_masks_are_the_glass_silhouette(rendered):
 
 
 def test_dataset_round_trip(tmp_path):
-    res = synth.make_dataset('sphere', str(tmp_path), views=3, res=16, spp=4, seed=2)
+    res = synthetic.make_dataset('sphere', str(tmp_path), views=3, res=16, spp=4, seed=2)
     assert sorted(os.listdir(tmp_path)) == ['box', 'box.ply', 'box_neus', 'gt.ply', 'nobox',
                                             'nobox_neus', 'synth.json']
     for subset, with_box in (('box', True), ('nobox', False)):
@@ -141,7 +141,7 @@ def test_dataset_round_trip(tmp_path):
             np.testing.assert_array_equal(ds.masks, res['masks'])
             # 8-bit files: half a step of quantisation.
             np.testing.assert_allclose(as_float(ds.images), res["images"][subset], atol=0.5 / 255 + 1e-6)
-            assert ds.ior == (synth.IOR if with_box else None)
+            assert ds.ior == (synthetic.IOR if with_box else None)
             assert (ds.container is not None) == with_box
             gt = trimesh.load(ds.gt_mesh)
             np.testing.assert_allclose(gt.bounds, trimesh.load(res['gt_mesh']).bounds, atol=1e-6)
@@ -163,7 +163,7 @@ def test_containers_of_collections(tmp_path, kind):
         return
     inner = trimesh.load(ds.inner[0].mesh)
     wall = (outer.extents - inner.extents) / 2
-    ior = {'case': 1.0, 'jar': synth.LIQUID_IOR}[kind]
+    ior = {'case': 1.0, 'jar': synthetic.LIQUID_IOR}[kind]
     assert ds.ior == 1.45 and ds.inner[0].ior == ior and ds.absorption is None
     assert np.allclose(ds.inner[0].absorption, [0.1, 0.2, 0.3])
     assert found.count == 2 and found.ior == pytest.approx((1.45, ior), rel=1e-6)
