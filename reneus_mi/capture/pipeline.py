@@ -225,8 +225,10 @@ def locate(board: Board, reduced: dict, cal: Calibration, kept, K_work,
     images, valid = load_views(reduced, cal, kept, K_work)
     c2w = np.stack([v.c2w for v in cal.views])
     try:
+        # A solid block stated as a box, its edges not stated: polished blocks are rounded.
+        rounding = settings.container == 'box' and settings.edge_mm is None and settings.wall_mm is None
         reg = register(images, valid, K_work, c2w, board, settings.container, settings.size_mm,
-                       pose=settings.container_pose, start=start, edge=settings.edge_mm)
+                       pose=settings.container_pose, start=start, edge=settings.edge_mm, rounding=rounding)
     except ReneusError as e:
         failed = getattr(e, 'registration', None)
         writer.write_overlays(out, images, K_work, c2w, board, cal, settings,
@@ -236,8 +238,13 @@ def locate(board: Board, reduced: dict, cal: Calibration, kept, K_work,
 
 
 def measured(settings: settings_mod.CaptureSettings, reg: Registration) -> settings_mod.CaptureSettings:
-    """The settings with the container's size as the photographs measured it, where they did."""
-    return dataclasses.replace(settings, size_mm=reg.best_size) if reg.size_measured else settings
+    """The settings with the container's size and a block's rounded edges as the photographs
+    measured them, where they did."""
+    if reg.size_measured:
+        settings = dataclasses.replace(settings, size_mm=reg.best_size)
+    if reg.edge_mm is not None:
+        settings = dataclasses.replace(settings, container='rounded', edge_mm=reg.edge_mm)
+    return settings
 
 
 def recalibrate(board: Board, detections: dict, size, cal: Calibration,

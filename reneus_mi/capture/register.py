@@ -19,6 +19,7 @@ and the measured outlines.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import cv2
@@ -49,6 +50,13 @@ SIZE_TOLERANCE_MM = 1.0
 #: Rounds of place and size when the size is measured (--size-mm auto): the first from a
 #: cube of the silhouettes' width, the second from the first's size.
 SIZE_ROUNDS = 2
+#: Edge radii tried for a block stated as a box (mm, up to this share of its smallest size),
+#: and how much closer a rounded block's outline must lie to the silhouettes to be taken for
+#: it: polished blocks are rounded, and a box stated for one bends light at its edges
+#: otherwise than the photographs show (docs/containers.md).
+EDGE_STEP_MM = 0.25
+EDGE_MAX_SHARE = 0.2
+EDGE_GAIN = 0.1
 #: The container is not found when the median view's residual exceeds this share of its
 #: apparent size (and 2 pixels).
 FOUND_LIMIT = 0.05
@@ -71,6 +79,11 @@ class Registration:
     size_std: tuple[float, float, float] | None = None
     #: Whether the size was measured (--size-mm auto) rather than stated.
     size_measured: bool = False
+    #: The radius of the edges of a block stated as a box (mm) where the photographs show them
+    #: rounded, else None; and the mean outline distance (pixels) of the sharp box and of the
+    #: best radius, each at its own best place.
+    edge_mm: float | None = None
+    edge_residuals: tuple[float, float] | None = None
 
 
 def predict_board(board: Board, K: np.ndarray, c2w: np.ndarray, size: tuple[int, int]):
@@ -206,6 +219,12 @@ class _Fit:
         self.D = _distance_maps(measured)
         self.trusted = trusted.astype(np.float32)
 
+    def with_outline(self, outline: Outline) -> '_Fit':
+        """The same silhouettes fitted by another outline (the distance maps are kept)."""
+        other = copy.copy(self)
+        other.outline = outline
+        return other
+
     def distances(self, pose, clip=None, unknown: float | str | None = 0.0, size=None) -> np.ndarray:
         """(views, OUTLINE_POINTS) distances, clipped to ``clip`` (per view); where a point lies
         off the board or the photograph, nothing is known: ``unknown`` there (0: no say in a
@@ -228,9 +247,11 @@ def _wrap(yaw: float, period: float) -> float:
 
 def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarray, board: Board,
              shape: str, size, *, pose=None, start=None, measured: np.ndarray | None = None,
-             edge: float | None = None) -> Registration:
+             edge: float | None = None, rounding: bool = False) -> Registration:
     """Find the container (``shape``, outer ``size`` in mm, ``edge`` the radius of its rounded
-    edges, see :func:`~reneus_mi.capture.placement.local_mesh`) standing on ``board``.
+    edges, see :func:`~reneus_mi.capture.placement.local_mesh`) standing on ``board``; with
+    ``rounding``, a block stated as a box whose edges the photographs show rounded is found as
+    the rounded block it is (:func:`_measure_edge`).
 
     ``images`` (N,h,w,3) are the undistorted photographs (display values), ``valid`` where
     they hold photograph, ``K`` their pinhole intrinsics and ``c2w`` (N,4,4) their cameras in
@@ -268,6 +289,13 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
     fit = _Fit(outline, measured, trusted, seen)
     if pose is None:
         pose = _search(fit, measured, K, c2w, seen, shape, size, start)
+    rounded = edge_residuals = None
+    if rounding and shape == 'box' and not pose_given:
+        rounded, edge_residuals, pose = _measure_edge(fit, pose, size, K, c2w)
+        if rounded is not None:
+            shape, edge = 'rounded', rounded
+            outline = Outline(shape, size, K, c2w, edge)
+            fit = fit.with_outline(outline)
     pose = tuple(float(x) for x in pose)
     d = fit.distances(pose, unknown=None)
     apparent = np.array([outline.size(pose, v) for v in seen])
@@ -279,7 +307,7 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
             per_view[v] = float(np.sqrt(np.mean(d[j][inlier[j]] ** 2))) if inlier[j].any() else np.inf
     residual = float(np.sqrt(np.mean(d[inlier] ** 2))) if inlier.any() else float('inf')
     result = Registration(pose=pose, residual=residual, view_residuals=per_view, measured=measured,
-                          size_measured=measured_size)
+                          size_measured=measured_size, edge_mm=rounded, edge_residuals=edge_residuals)
     _check_place(board, pose, per_view, measured, result)
     if not pose_given:
         _check_size(fit, pose, size, shape, TRUNCATION * apparent, result, measured_size)
@@ -353,6 +381,23 @@ def _search(fit: _Fit, measured, K, c2w, seen, shape: str, size, start) -> tuple
     else:
         starts = [tuple(start)]
     return min((_refine(fit, p0, clip, period) for p0 in starts), key=lambda r: r[0])[1]
+
+
+def _measure_edge(fit: _Fit, pose, size, K, c2w) -> tuple[float | None, tuple[float, float], tuple]:
+    """The radius of a block's edges that its silhouettes show (None: sharp, as stated), the
+    mean outline distance of the sharp box and of the best radius, and the place that fits:
+    each radius of :data:`EDGE_STEP_MM` steps at its own best place; rounded only where that
+    brings the outline :data:`EDGE_GAIN` closer."""
+    clip = TRUNCATION * np.array([fit.outline.size(pose, v) for v in fit.views])
+    period = symmetry('box', size)
+    sharp = float(np.mean(np.abs(fit.distances(pose, clip))))
+    best = (sharp, None, pose)
+    for radius in np.arange(EDGE_STEP_MM, EDGE_MAX_SHARE * min(size) + 1e-9, EDGE_STEP_MM):
+        cost, place = _refine(fit.with_outline(Outline('rounded', size, K, c2w, float(radius))), pose, clip, period)
+        best = min(best, (cost, float(radius), place), key=lambda b: b[0])
+    if best[1] is None or not best[0] < (1.0 - EDGE_GAIN) * sharp:
+        return None, (sharp, best[0]), pose
+    return best[1], (sharp, best[0]), best[2]
 
 
 def _measure_size(measured, trusted, K, c2w, seen, shape: str, start, edge) -> tuple[tuple, tuple]:

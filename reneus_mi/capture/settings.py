@@ -50,7 +50,9 @@ class CaptureSettings:
     (report.json gives it with its uncertainty; calipers are better)."""
     edge_mm: float | None = None
     """Radius in millimetres of a rounded block's edges or of a jar's rims (0: sharp); not given:
-    0.3 x the smallest half-size of the box the shape rounds (a moulded jar 40 mm across and 30
+    for a solid box, measured from the photographs (a polished block stated as a box becomes
+    the rounded block they show, report.json's container.edge_mm); for the other shapes, 0.3 x
+    the smallest half-size of the box the shape rounds (a moulded jar 40 mm across and 30
     high: 3.5 mm)."""
     ior: float | None = None
     """Index of refraction of the container (glass about 1.5, acrylic 1.49, epoxy resin 1.55)."""

@@ -61,6 +61,8 @@ class Rig:
     """A hollow container's walls (a case, a jar); None: a solid block."""
     liquid_ior: float | None = None
     """The liquid in a hollow container; None: air."""
+    edge_mm: float | None = None
+    """A rounded block's edge radius; None: the generator's (a share of the smallest size)."""
     pose: tuple[float, float, float] = (117.3, 93.6, 23.0)
     """Where the container stands: footprint centre x, y (mm) and yaw (degrees)."""
     specimen: str = 'insect'
@@ -107,7 +109,7 @@ class Rig:
         return CaptureSettings(squares=tuple(self.squares), square_mm=self.square_mm,
                                marker_mm=self.marker_mm, dictionary=self.dictionary,
                                container=self.container, size_mm=tuple(self.size_mm), ior=self.ior,
-                               wall_mm=self.wall_mm, liquid_ior=self.liquid_ior)
+                               wall_mm=self.wall_mm, liquid_ior=self.liquid_ior, edge_mm=self.edge_mm)
 
     def K(self) -> np.ndarray:
         cx = 0.5 * self.width + self.principal_offset_px[0]
@@ -167,7 +169,7 @@ def specimen_mesh(rig: Rig) -> trimesh.Trimesh:
     """The specimen (coloured) inside the container, in the board's frame."""
     mesh = load_object(rig.specimen)
     wall = rig.wall_mm or 0.0
-    inner = local_mesh(rig.container, rig.size_mm, wall)
+    inner = local_mesh(rig.container, rig.size_mm, wall, rig.edge_mm)
     # A jar's or rounded block's inner box is smaller than its outer size.
     room = (np.asarray(rig.size_mm) - 2.0 * wall) * (0.7 if rig.container == 'cylinder' else 1.0)
     scale = rig.specimen_fill * np.min(room / mesh.extents)
@@ -236,7 +238,8 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
     os.makedirs(truth, exist_ok=True)
     # Shaded with the normals the reneus integrator gives the same files.
     shapes, outside = {}, 1.0
-    for interface, mesh in interfaces(rig.container, rig.size_mm, rig.ior, rig.wall_mm, rig.liquid_ior, rig.pose):
+    for interface, mesh in interfaces(rig.container, rig.size_mm, rig.ior, rig.wall_mm, rig.liquid_ior, rig.pose,
+                                      rig.edge_mm):
         path = os.path.join(truth, interface.mesh)
         write_container(mesh, path, normals=rig.container != 'box')
         shapes[os.path.splitext(interface.mesh)[0]] = shading_mesh(path, bsdf={

@@ -125,14 +125,17 @@ def write(out: str, s: CaptureSettings, board: Board, cal: Calibration, K: np.nd
                    'container_residual_px': float(r), 'window_px': [*map(int, corner), *windows.size]}
                   for v, g, r, corner in zip(cal.views, light.gains, reg.view_residuals, windows.corners)],
         'left_out': left_out,
-        'container': {'shape': s.container, 'size_mm': list(s.size_mm), 'wall_mm': s.wall_mm,
+        'container': {'shape': s.container, 'size_mm': list(s.size_mm), 'edge_mm': s.edge_mm, 'wall_mm': s.wall_mm,
                       'liquid_ior': s.liquid_ior, 'pose': list(reg.pose),
                       'pose_given': s.container_pose is not None, 'residual_px': reg.residual,
                       'size_measured': reg.size_measured,
                       'size_fit_mm': None if reg.best_size is None else list(reg.best_size),
                       'size_fit_std_mm': None if reg.size_std is None else list(reg.size_std),
                       'size_fit_outline_px': None if reg.size_residuals is None else
-                      dict(zip(('stated', 'fit'), reg.size_residuals))},
+                      dict(zip(('stated', 'fit'), reg.size_residuals)),
+                      'edge_measured': reg.edge_mm is not None,
+                      'edge_fit_outline_px': None if reg.edge_residuals is None else
+                      dict(zip(('sharp', 'rounded'), reg.edge_residuals))},
         'light': {'ambient': light.ambient.tolist(), 'ambient_from': light.ambient_from,
                   'board_white': light.white.tolist(), 'board_black': light.black.tolist()},
     }
@@ -195,6 +198,10 @@ def table(report: dict) -> str:
         said = ('measured (--size-mm auto)' if box['size_measured'] else
                 f"stated {'x'.join(f'{v:g}' for v in box['size_mm'])} mm")
         lines.append(f"container: {said}; the photographs fit {fit} mm (statistical deviations)")
+    if box['edge_measured']:
+        px = box['edge_fit_outline_px']
+        lines.append(f"container: stated as a box, its edges rounded in the photographs: radius {box['edge_mm']:g} mm "
+                     f"(outline {px['sharp']:.2f} px from the silhouettes as a box, {px['rounded']:.2f} px rounded)")
     cover = cam['coverage']
     lines.append(f"board coverage: {cover['share']:.0%} of the frame; the lens model uncertain by up to "
                  f"{cover['extrapolated_px']:.2f} px beyond it")

@@ -55,6 +55,8 @@ def test_container_found_on_the_board(shot, made):
     assert np.hypot(x - tx, y - ty) < 0.5
     assert abs((yaw - tyaw + 90.0) % 180.0 - 90.0) < 0.5
     assert made['report']['container']['residual_px'] < 3.0
+    # Sharp, as stated: no rounding read into its outline (test_rounded_block.py).
+    assert not made['report']['container']['edge_measured']
 
 
 def test_uncertainty_and_coverage_reported(shot, made):
