@@ -58,7 +58,7 @@ CONTAINERS = ('box', 'rounded', 'cylinder')
 #: Edge radius of the rounded block and the jar's rims, as a fraction of the smallest half-extent.
 ROUNDING = 0.3
 #: Steps of a quarter circle of the rounded block's edges and corners: its chords stray from
-#: the arc by r (1 - cos(pi / 4N)), 0.1 % of the radius (Blender's bevel of the Blender
+#: the arc by r (1 - cos(pi / 4N)), 0.2 % of the radius (Blender's bevel of the Blender
 #: captures: 12 as well).
 EDGE_SEGMENTS = 12
 
