@@ -289,37 +289,56 @@ def register(images: np.ndarray, valid: np.ndarray, K: np.ndarray, c2w: np.ndarr
     fit = _Fit(outline, measured, trusted, seen)
     if pose is None:
         pose = _search(fit, measured, K, c2w, seen, shape, size, start)
-    rounded = edge_residuals = None
-    if rounding and shape == 'box' and not pose_given:
-        rounded, edge_residuals, pose = _measure_edge(fit, pose, size, K, c2w)
-        if rounded is not None:
-            shape, edge = 'rounded', rounded
-            outline = Outline(shape, size, K, c2w, edge)
-            fit = fit.with_outline(outline)
     pose = tuple(float(x) for x in pose)
+    per_view, residual, apparent = _residuals(fit, pose, n)
+    result = Registration(pose=pose, residual=residual, view_residuals=per_view, measured=measured,
+                          size_measured=measured_size)
+    _check_place(board, pose, per_view, measured, result)
+    if rounding and shape == 'box' and not pose_given:
+        # Only a box found as stated: a wrong statement is refused as such, not fitted round.
+        _check_found(result, apparent)
+        radius, result.edge_residuals, rounded_pose = _measure_edge(fit, pose, size, K, c2w)
+        if radius is not None:
+            shape, fit = 'rounded', fit.with_outline(Outline('rounded', size, K, c2w, radius))
+            pose = tuple(float(x) for x in rounded_pose)
+            per_view, residual, apparent = _residuals(fit, pose, n)
+            result = dataclasses.replace(result, pose=pose, residual=residual, view_residuals=per_view,
+                                         edge_mm=radius)
+    if not pose_given:
+        _check_size(fit, pose, size, shape, TRUNCATION * apparent, result, measured_size)
+    _check_found(result, apparent)
+    return result
+
+
+def _check_found(result: Registration, apparent: np.ndarray) -> None:
+    """Refuse a place whose outline lies further from the silhouettes than :data:`FOUND_LIMIT`
+    of the container's apparent size (median view)."""
+    median = float(np.nanmedian(result.view_residuals))
+    limit = max(2.0, FOUND_LIMIT * float(np.median(apparent)))
+    if not median <= limit:
+        x, y, yaw = result.pose
+        err = ReneusError(f'container not found: at the best place x={x:.1f} mm, y={y:.1f} mm, '
+                          f'yaw={yaw:.1f} deg its outline lies {median:.1f} px '
+                          f'(median view) from what the photographs show; expected at most {limit:.1f} px '
+                          '(check --size-mm and --container; see the overlays; or give --container-pose x,y,yaw)')
+        err.measured, err.registration = result.measured, result
+        raise err
+
+
+def _residuals(fit: _Fit, pose, n: int) -> tuple[np.ndarray, float, np.ndarray]:
+    """Per view (of ``n``; NaN where too little of the outline lies on the board) and over all
+    views, the RMS outline distance at ``pose`` (outliers beyond :data:`TRUNCATION` of the
+    apparent size left out), and each measured view's apparent size (pixels)."""
     d = fit.distances(pose, unknown=None)
-    apparent = np.array([outline.size(pose, v) for v in seen])
+    apparent = np.array([fit.outline.size(pose, v) for v in fit.views])
     known = np.isfinite(d)
     inlier = known & (np.abs(np.nan_to_num(d)) < TRUNCATION * apparent[:, None])
     per_view = np.full(n, np.nan)
-    for j, v in enumerate(seen):
+    for j, v in enumerate(fit.views):
         if known[j].mean() >= MIN_KNOWN:
             per_view[v] = float(np.sqrt(np.mean(d[j][inlier[j]] ** 2))) if inlier[j].any() else np.inf
     residual = float(np.sqrt(np.mean(d[inlier] ** 2))) if inlier.any() else float('inf')
-    result = Registration(pose=pose, residual=residual, view_residuals=per_view, measured=measured,
-                          size_measured=measured_size, edge_mm=rounded, edge_residuals=edge_residuals)
-    _check_place(board, pose, per_view, measured, result)
-    if not pose_given:
-        _check_size(fit, pose, size, shape, TRUNCATION * apparent, result, measured_size)
-    limit = max(2.0, FOUND_LIMIT * float(np.median(apparent)))
-    if not np.nanmedian(per_view[seen]) <= limit:
-        err = ReneusError(f'container not found: at the best place x={pose[0]:.1f} mm, y={pose[1]:.1f} mm, '
-                          f'yaw={pose[2]:.1f} deg its outline lies {np.nanmedian(per_view[seen]):.1f} px '
-                          f'(median view) from what the photographs show; expected at most {limit:.1f} px '
-                          '(check --size-mm and --container; see the overlays; or give --container-pose x,y,yaw)')
-        err.measured, err.registration = measured, result
-        raise err
-    return result
+    return per_view, residual, apparent
 
 
 def _best_size(fit: _Fit, pose, size, shape: str, clip) -> tuple[tuple, float, float]:
