@@ -15,7 +15,8 @@ view's signed distance map to the measured silhouette's outline (as
 :mod:`reneus_mi.train.silhouette` does for the trainer): a start from the rays through the
 measured silhouettes' centroids, a coarse search over yaw, then a robust least-squares
 refinement of all three. The residual is the RMS distance in pixels between the projected
-and the measured outlines.
+and the measured outlines. A solid block stated as a box, once found as stated, is fitted
+again with its edges rounded (:func:`_measure_edge`): polished blocks are.
 """
 from __future__ import annotations
 
