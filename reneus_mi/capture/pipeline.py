@@ -122,11 +122,16 @@ def load_views(reduced: dict, cal: Calibration, out_size, K_out) -> tuple[np.nda
     return np.stack(images), np.stack(valid)
 
 
+def container_hull(settings: settings_mod.CaptureSettings, pose) -> np.ndarray:
+    """The corners of the container's convex hull on the board at ``pose`` (mm)."""
+    return np.asarray(board_mesh(settings.container, settings.size_mm, pose,
+                                 edge=settings.edge_mm).convex_hull.vertices)
+
+
 def seen_through(cal: Calibration, settings: settings_mod.CaptureSettings, pose):
     """``exclude`` for :func:`calibrate`: corners inside the container's projection (with the
     lens, in the photograph) or within :data:`EXCLUSION_MARGIN_PX` of it."""
-    hull = np.asarray(board_mesh(settings.container, settings.size_mm, pose,
-                                 edge=settings.edge_mm).convex_hull.vertices)
+    hull = container_hull(settings, pose)
     by_name = {v.name: i for i, v in enumerate(cal.views)}
 
     def exclude(name, pixels):
@@ -180,7 +185,7 @@ def run(settings: settings_mod.CaptureSettings, photos_dir: str, out: str, *, cr
     light = check_and_overlay(out, board, cal, found, second)
     reg, c2w = second.reg, second.c2w
     del second   # the working copies' views: the crops are decoded from the photographs
-    hull = np.asarray(board_mesh(found.container, found.size_mm, reg.pose, edge=found.edge_mm).convex_hull.vertices)
+    hull = container_hull(found, reg.pose)
     by_name = {p.name: p for p in shots}
 
     def lens_of(v):
