@@ -212,6 +212,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         :attr:`state` (see :meth:`begin_step`).
         """
         surroundings = self.bind(scene)
+        if surroundings.walls is not None:
+            surroundings.walls.sync(surroundings.container)
         n = dr.width(ray.o)
         jitter = None
         if self.state.seed is not None:
@@ -325,20 +327,26 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
                 β = dr.select(alive, β * surroundings.attenuation(rays.region, hit.t, lanes), β)
 
     def _intersect(self, surroundings, rays, lanes) -> '_Hit':
-        """The rays' next container interface: distance, point, normals (differentiable in the pose)."""
-        pose, container = surroundings.pose, surroundings.container
-        if pose is None:
-            si = container.ray_intersect(mi.Ray3f(rays.o, rays.d))
-            p = mi.Point3f(rays.o + si.t * rays.d)
-            return _Hit(t=si.t, p=p, n=si.n, n_s=interpolated_normal(surroundings.normals, si, p),
-                        valid=si.is_valid(), group=surroundings.group(si))
-        # The container as loaded, seen by the rays taken into its frame: t is the same
-        # parameter along both rays when the direction keeps its length.
-        o_c, d_c = pose.to_container(rays.o, rays.d, lanes)
-        si = container.ray_intersect(mi.Ray3f(o_c, d_c))
-        n_s = interpolated_normal(surroundings.normals, si, o_c + si.t * d_c)
-        return _Hit(t=si.t, p=mi.Point3f(rays.o + si.t * rays.d), n=pose.normal_to_world(si.n, lanes),
-                    n_s=pose.normal_to_world(n_s, lanes), valid=si.is_valid(), group=surroundings.group(si))
+        """The rays' next container interface: distance, point, normals (differentiable in the
+        pose and the walls' thickness)."""
+        pose, container, walls = surroundings.pose, surroundings.container, surroundings.walls
+        o, d = (rays.o, rays.d) if pose is None else pose.to_container(rays.o, rays.d, lanes)
+        si = container.ray_intersect(mi.Ray3f(o, d))
+        group = surroundings.group(si)
+        t, vertex = si.t, None
+        if walls is not None:
+            # The inner face moved in along its normal by the change of the wall: dt/dw = -1 / (n · d).
+            shift, cos = walls.shift(group, lanes), dr.dot(si.n, d)
+            t = t - shift / dr.select(dr.abs(cos) > 1e-4, cos, 1e-4)
+            vertex = walls.vertex(shift)
+        # In the container's frame t is the same parameter along the ray when the direction
+        # keeps its length.
+        n_s = interpolated_normal(surroundings.normals, si, o + t * d, vertex)
+        if pose is not None:
+            n, n_s = pose.normal_to_world(si.n, lanes), pose.normal_to_world(n_s, lanes)
+        else:
+            n = si.n
+        return _Hit(t=t, p=mi.Point3f(rays.o + t * rays.d), n=n, n_s=n_s, valid=si.is_valid(), group=group)
 
     def _trace_neus(self, surroundings, rays, acc, jitter):
         # Plain NeuS: the field's unit bounding sphere, ambient beyond it.

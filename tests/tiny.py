@@ -33,15 +33,16 @@ PARAM_ATOL = 1e-5
 MOMENT_RTOL = 1e-3
 
 
-def tiny_dataset(root) -> str:
-    """Render (once per pytest session folder) the tiny dataset; return its scene XML."""
+def tiny_dataset(root, container: str = 'box') -> str:
+    """Render (once per pytest session folder) the tiny dataset, the statuette in ``container``
+    (a solid ``box``, a glass ``case``); return its scene XML."""
     from reneus_mi.data import load_dataset
     from reneus_mi.data.scene_xml import write_scene
     from reneus_mi.data.synthetic import make_dataset
     root = str(root)
     data = os.path.join(root, 'box')
     if not os.path.isfile(os.path.join(data, 'transforms.json')):
-        make_dataset('statuette', root, views=12, res=16, spp=16, subsets=('box',))
+        make_dataset('statuette', root, views=12, res=16, spp=16, subsets=('box',), container=container)
     scene = os.path.join(root, 'scene_tiny.xml')
     if not os.path.isfile(scene):
         write_scene(load_dataset(data), scene, preset='tiny')

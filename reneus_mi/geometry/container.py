@@ -94,9 +94,9 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
         np.linalg.norm(e_next, axis=2) * np.linalg.norm(e_prev, axis=2), 1e-30)
     weight = np.arccos(np.clip(cos_corner, -1.0, 1.0)) * solid[:, None]
 
-    weld = _weld(v)
+    welded = weld(v)
     # Every ordered pair (a, b) of corners at one welded vertex, a and b included.
-    w = weld[f].ravel()
+    w = welded[f].ravel()
     order = np.argsort(w, kind='stable')
     count = np.bincount(w)
     start = np.concatenate([[0], np.cumsum(count)[:-1]])
@@ -118,10 +118,10 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
         n = np.asarray(normals, np.float64)
         n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
         # A vertex's copies (one per face in a flat-written mesh) must carry one normal.
-        ref = np.zeros((weld.max() + 1, 3))
-        ref[weld] = n
+        ref = np.zeros((welded.max() + 1, 3))
+        ref[welded] = n
         agree = np.ones(len(ref), bool)
-        np.logical_and.at(agree, weld, np.einsum('vi,vi->v', n, ref[weld]) >= 1.0 - _SAME_NORMAL)
+        np.logical_and.at(agree, welded, np.einsum('vi,vi->v', n, ref[welded]) >= 1.0 - _SAME_NORMAL)
         creased = np.zeros(3 * len(f), bool)
         np.logical_or.at(creased, a, ~smooth)
         stored = n[f.ravel()]
@@ -138,21 +138,21 @@ def crease_edges(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> np.ndarr
     :func:`corner_normals` welds them."""
     params = mi.traverse(shape)
     v = np.array(params['vertex_positions'], np.float64).reshape(-1, 3)
-    weld = _weld(v)
-    welded = np.zeros((weld.max() + 1, 3))
-    welded[weld] = v
-    mesh = trimesh.Trimesh(welded, weld[np.array(params['faces']).reshape(-1, 3)], process=False)
+    index = weld(v)
+    welded = np.zeros((index.max() + 1, 3))
+    welded[index] = v
+    mesh = trimesh.Trimesh(welded, index[np.array(params['faces']).reshape(-1, 3)], process=False)
     sharp = mesh.face_adjacency_angles > np.radians(crease_angle)
     return mesh.vertices[mesh.face_adjacency_edges[sharp]]
 
 
-def _weld(v: np.ndarray) -> np.ndarray:
+def weld(v: np.ndarray) -> np.ndarray:
     """Each vertex's index among the vertices welded by position, to :data:`_WELD` of the
     mesh's size (a mesh written with one vertex per face corner is then connected)."""
     size = float(np.ptp(v, axis=0).max()) if len(v) else 1.0
-    _, weld = np.unique(np.round(v / (_WELD * max(size, 1e-30))).astype(np.int64), axis=0,
-                        return_inverse=True)
-    return weld.ravel()
+    _, index = np.unique(np.round(v / (_WELD * max(size, 1e-30))).astype(np.int64), axis=0,
+                         return_inverse=True)
+    return index.ravel()
 
 
 def shading_normals(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> mi.Float:
@@ -165,16 +165,17 @@ def shading_normals(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> mi.Fl
                                    crease_angle).ravel())
 
 
-def interpolated_normal(normals: dict, si: mi.SurfaceInteraction3f, p: mi.Point3f) -> mi.Vector3f:
+def interpolated_normal(normals: dict, si: mi.SurfaceInteraction3f, p: mi.Point3f, vertex=None) -> mi.Vector3f:
     """The shading normal at ``p`` on the triangle ``si`` hit: its corners' normals
     (``normals[shape]``, the container's rule: :func:`shading_normals`) interpolated at the barycentrics of ``p``. Unlike ``si.sh_frame.n`` it follows ``p`` when
-    the ray moves (the pose's derivative on curved glass). Shapes that are not meshes
-    (Mitsuba's analytic sphere) keep their own."""
+    the ray moves (the pose's derivative on curved glass), and the corners where ``vertex``
+    (shape, index, active) -> position puts them (default: the mesh's own; the refined walls'
+    derivative). Shapes that are not meshes (Mitsuba's analytic sphere) keep their own."""
     n_s = mi.Vector3f(si.sh_frame.n)
     for shape, table in normals.items():
         on = si.is_valid() & (si.shape == mi.ShapePtr(shape))
         f = shape.face_indices(si.prim_index, on)
-        p0, p1, p2 = (shape.vertex_position(f[i], on) for i in range(3))
+        p0, p1, p2 = ((vertex or _vertex)(shape, f[i], on) for i in range(3))
         e1, e2, e = p1 - p0, p2 - p0, p - p0
         d11, d12, d22 = dr.dot(e1, e1), dr.dot(e1, e2), dr.dot(e2, e2)
         inv = dr.rcp(dr.maximum(d11 * d22 - d12 * d12, 1e-20))
@@ -186,6 +187,10 @@ def interpolated_normal(normals: dict, si: mi.SurfaceInteraction3f, p: mi.Point3
              + b2 * dr.gather(mi.Vector3f, table, corner + 2, on))
         n_s = dr.select(on, dr.normalize(n), n_s)
     return n_s
+
+
+def _vertex(shape: mi.Mesh, index: mi.UInt32, active: mi.Bool) -> mi.Point3f:
+    return shape.vertex_position(index, active)
 
 
 def container_shape(path: str, bsdf: dict | None = None) -> mi.Mesh:

@@ -38,6 +38,7 @@ from reneus_mi.render.interfaces import Interfaces, interfaces_of
 from reneus_mi.render.light import Light, emitter_radiance
 from reneus_mi.render.pose import ContainerPose
 from reneus_mi.render.step_state import refined
+from reneus_mi.render.walls import ContainerWalls
 from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.param_groups import ParamGroup
 
@@ -49,7 +50,7 @@ class Surroundings:
     def __init__(self, interfaces: Interfaces | None, shapes: list, emitter: mi.Emitter, *,
                  backdrop: list = (), light: str = 'emitter', pose: bool = False, pivot=(0.0, 0.0, 0.0),
                  crease_angle: float = CREASE_ANGLE, board_texels: int = 0, absorption: bool = False,
-                 edge_margin: float = 0.0):
+                 edge_margin: float = 0.0, wall: bool = False):
         #: The nested interfaces (None: no container, mode 'neus').
         self.interfaces = interfaces
         self.container_eta = self.inner_ior = self.sigma_a = None
@@ -80,6 +81,7 @@ class Surroundings:
         self.emitter = emitter
         self.light = None if light == 'emitter' else Light(light, emitter)
         self.pose = ContainerPose(pivot) if pose else None
+        self.walls = ContainerWalls(shapes, interfaces.group_of_shape(), interfaces.outer) if wall else None
         self.shading = None
         if backdrop and board_texels:
             self.shading = BoardShading(board_texels, uv_aspect(backdrop[0]))
@@ -129,6 +131,8 @@ class Surroundings:
                             ('container.sigma_a', self.sigma_a)):
             if array is not None:
                 out[name] = array
+        if self.walls is not None:
+            out.update(self.walls.params())
         if self.pose is not None:
             out.update(self.pose.params())
         if self.light is not None:
@@ -234,6 +238,10 @@ class Surroundings:
         if refine.absorption:
             groups.append(ParamGroup('absorption', ('container.sigma_a',), refine.absorption_learning_rate,
                                      refine.after, (0.0, float('inf'))))
+        if self.walls is not None:
+            groups.append(ParamGroup('wall', (ContainerWalls.NAME,),
+                                     refine.wall_learning_rate * float(self.walls.stated.max()), refine.after,
+                                     self.walls.bounds()))
         if self.pose is not None:
             groups.append(ParamGroup('pose', tuple(self.pose.params()), refine.pose_learning_rate, refine.after))
         if self.light is not None:
@@ -248,6 +256,8 @@ class Surroundings:
         for name in names:
             value = np.array(params[name], np.float64).round(6).tolist()
             out[name] = value[0] if name == 'container.eta' else value
+        if ContainerWalls.NAME in out:
+            out['container.wall_stated'] = self.walls.stated.round(6).tolist()
         if 'container.log_scale' in out:
             out['container.scale'] = np.exp(out['container.log_scale']).round(6).tolist()
         if 'light.sh' in out:
@@ -317,4 +327,4 @@ def surroundings_of(scene: mi.Scene, render, refine) -> 'Surroundings':
     return Surroundings(interfaces_of(shapes), shapes, scene.environment(), backdrop=backdrop,
                         light=refine.light_model(), pose=refine.pose, pivot=0.5 * (bbox.min + bbox.max),
                         crease_angle=render.crease_angle, board_texels=render.board_texels,
-                        absorption=refine.absorption, edge_margin=render.edge_margin)
+                        absorption=refine.absorption, edge_margin=render.edge_margin, wall=refine.wall)

@@ -53,6 +53,13 @@ class RefineConfig:
     """First and last scale of the robust loss of that fit's second half
     (:func:`~reneus_mi.train.losses.welsch`, on gamma-encoded colours), shrinking geometrically:
     residuals well beyond it, the specimen's pixels, weigh nothing."""
+    wall: bool = False
+    """Refine the thickness of a hollow container's walls (container.wall: each inner
+    interface's distance in from the one around it, a case's glass, a jar's) with the field,
+    from what the scene states; the outer surface stays where the capture measured it. The
+    refined container is written as container_refined.ply."""
+    wall_learning_rate: float = 0.005
+    """Peak learning rate of the walls' thickness, as a share of the thickest stated wall."""
     pose: bool = False
     """Refine the container's position, rotation and per-axis scale with the field
     (container.translation, .rotation, .log_scale); the refined container is written as
@@ -74,7 +81,7 @@ class RefineConfig:
 
     def __post_init__(self):
         check_numbers(self, positive=('ior_learning_rate', 'absorption_learning_rate', 'media_learning_rate',
-                                      'media_rays', 'pose_learning_rate', 'light_learning_rate'),
+                                      'media_rays', 'wall_learning_rate', 'pose_learning_rate', 'light_learning_rate'),
                       at_least_zero=('after', 'silhouette_weight', 'media_steps'))
         check_choice(self, 'light', ('none',) + LIGHTS[1:])
         lo, hi = self.ior_range
@@ -83,7 +90,8 @@ class RefineConfig:
 
     def any(self) -> bool:
         """Whether anything besides the field is refined."""
-        return self.ior or self.inner_ior or self.absorption or self.pose or self.light != 'none'
+        return (self.ior or self.inner_ior or self.absorption or self.wall or self.pose
+                or self.light != 'none')
 
     def light_model(self) -> str:
         """The light as the integrator models it (one of :data:`~reneus_mi.render.light.LIGHTS`)."""

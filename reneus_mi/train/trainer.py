@@ -197,6 +197,22 @@ class Trainer:
         """The refined IOR, pose and light as they stand (a host read: for logs and results)."""
         return self.surroundings.values(self.refined) if self.refined else {}
 
+    def refined_spread(self) -> dict:
+        """Per refined value, its standard deviation over the log's rows of the run's last
+        fifth (of its steps): how much the estimate still moved at the end, a floor under its
+        uncertainty rather than its error (which the photographs alone cannot tell)."""
+        rows = []
+        if os.path.isfile(self.folder.log):
+            with open(self.folder.log) as f:
+                rows = [json.loads(line) for line in f if line.strip()]
+        rows = [row for row in rows if row.get('iteration', 0) >= 0.8 * self.iteration]
+        out = {}
+        for name in self.refined:
+            values = [row[name] for row in rows if name in row]
+            if len(values) > 1:
+                out[name] = np.asarray(values, np.float64).std(axis=0).round(6).tolist()
+        return out
+
     # ------------------------------------------------------------ checkpoints
     @property
     def checkpoint_path(self) -> str:
@@ -489,7 +505,8 @@ class Trainer:
             result['ground_truth'] = self.ds.gt_mesh
         if self.refined:
             result['refined'] = self.refined_values()
-        if cfg.refine.pose:
+            result['refined_spread'] = self.refined_spread()
+        if cfg.refine.pose or cfg.refine.wall:
             result['container'] = self.write_container(self.folder.container)
         try:
             mesh = self.write_mesh(mesh_path)

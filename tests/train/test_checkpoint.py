@@ -20,7 +20,7 @@ import pytest
 from reneus_mi.train import checkpoint
 from reneus_mi.train.trainer import TrainingError
 from tiny import (MOMENT_RTOL, PARAM_ATOL, assert_same_state, differences, file_state, new_trainer,
-                  poison_run, run_steps, train_state)
+                  poison_run, run_steps, tiny_dataset, train_state)
 
 
 # --------------------------------------------------------------------- resume
@@ -92,6 +92,18 @@ def test_resume_of_a_refining_run_is_bitwise(scene_xml, tmp_path, one_thread):
     init = new_trainer(scene_xml, tmp_path / 'init', **refine)
     moved = differences(a, train_state(init))
     assert moved['param/container.translation'] > 30 * PARAM_ATOL
+
+
+def test_resume_of_a_wall_refining_run_is_bitwise(tmp_path_factory, tmp_path, one_thread):
+    # The walls' thickness of a glass case: its value and Adam state come back from the
+    # checkpoint, and the inner faces are rebuilt where it stands.
+    scene_xml = tiny_dataset(tmp_path_factory.getbasetemp() / 'tiny_case', container='case')
+    refine = {'refine.wall': True, 'refine.after': 0, 'refine.wall_learning_rate': 0.05}
+    a, b = _resume_vs_unbroken(scene_xml, tmp_path, **refine)
+    assert 'param/container.wall' in a
+    assert_same_state(a, b, exact=True)
+    init = new_trainer(scene_xml, tmp_path / 'init', **refine)
+    assert differences(a, train_state(init))['param/container.wall'] > 30 * PARAM_ATOL
 
 
 # ----------------------------------------------------------------------- seed
