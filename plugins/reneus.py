@@ -335,9 +335,10 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         group = surroundings.group(si)
         t, vertex = si.t, None
         if walls is not None:
-            # The inner face moved in along its normal by the change of the wall: dt/dw = -1 / (n · d).
+            # The inner face moved in along its normal by the change of the wall: dt/dw = -1 / (n · d),
+            # held under 100 for rays that graze the face (within half a degree).
             shift, cos = walls.shift(group, lanes), dr.dot(si.n, d)
-            t = t - shift / dr.select(dr.abs(cos) > 1e-4, cos, 1e-4)
+            t = t - shift / dr.select(dr.abs(cos) > 1e-2, cos, dr.select(cos < 0.0, -1e-2, 1e-2))
             vertex = walls.vertex(shift)
         # In the container's frame t is the same parameter along the ray when the direction
         # keeps its length.
