@@ -83,11 +83,9 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     corners = v[f]                                              # (F, 3 corners, xyz)
-    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    area = np.linalg.norm(cross, axis=1)
+    n_face, area = face_normals(v, f)
     # Slivers have no reliable normal: they neither make creases nor weigh in means.
     solid = area > 1e-12 * max(float(np.median(area)), 1e-30)
-    n_face = cross / np.maximum(area, 1e-30)[:, None]
     e_next = np.roll(corners, -1, axis=1) - corners
     e_prev = np.roll(corners, 1, axis=1) - corners
     cos_corner = np.einsum('fci,fci->fc', e_next, e_prev) / np.maximum(
@@ -153,6 +151,44 @@ def weld(v: np.ndarray) -> np.ndarray:
     _, index = np.unique(np.round(v / (_WELD * max(size, 1e-30))).astype(np.int64), axis=0,
                          return_inverse=True)
     return index.ravel()
+
+
+def face_normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each triangle's unit normal (by its winding) and area."""
+    c = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    length = np.linalg.norm(c, axis=1)
+    return c / np.maximum(length, 1e-30)[:, None], 0.5 * length
+
+
+def offset_directions(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Per vertex the direction D that moves every face around it (welded by position) one
+    unit along its normal: the least-norm solution of n_i · D = 1 over its surfaces, a surface
+    being the faces within :data:`CREASE_ANGLE` of each other
+    (their area-weighted mean normal). A box's corner is mitred; a smooth wall, or a rim
+    rounded by small facets a few degrees apart, moves along its normal (mitred between such
+    facets, a vertex would move 30 times the change)."""
+    n, area = face_normals(v, f)
+    welded = weld(v)
+    # The faces at each welded vertex: the corners sorted by it.
+    corner = welded[f].ravel()
+    order = np.argsort(corner, kind='stable')
+    ends = np.cumsum(np.bincount(corner, minlength=welded.max() + 1))
+    cos_crease = np.cos(np.radians(CREASE_ANGLE))
+    D = np.zeros((len(ends), 3))
+    for k, faces in enumerate(np.split(order // 3, ends[:-1])):
+        first, sums = [], []
+        for normal, a in zip(n[faces], area[faces]):
+            near = [i for i, p in enumerate(first) if normal @ p >= cos_crease]
+            if near:
+                sums[near[0]] += a * normal
+            else:
+                first.append(normal)
+                sums.append(a * normal)
+        if sums:      # a vertex of no face stays
+            N = np.array(sums)
+            N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-30)
+            D[k] = np.linalg.lstsq(N, np.ones(len(N)), rcond=None)[0]
+    return D[welded]
 
 
 def shading_normals(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> mi.Float:

@@ -7,8 +7,8 @@ liquid) lies ``w`` in from the interface around it; refining ``w`` moves that in
 along its normals and leaves the outer one where the photographs put it.
 
 The inner meshes are rebuilt at the current thickness before each render (each face moved in
-by the change, its vertices along the mitred direction ``D`` with ``n · D = 1`` for every face
-at the vertex, so that the faces keep their shape and stay closed), and the hit distance of a
+by the change, its vertices along the mitred direction ``D`` with ``n · D = 1`` for every
+surface at the vertex, so that a box's faces keep their shape and stay closed), and the hit distance of a
 ray on an inner face carries the derivative of a plane moved along its normal,
 ``dt/dw = -1 / (n · d)``: the interior derivative (how refraction moves with the glass), as
 the pose's.
@@ -18,14 +18,11 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+import trimesh
 
-from reneus_mi.geometry.container import scene_of, weld
+from reneus_mi.geometry.container import CREASE_ANGLE, face_normals, offset_directions, scene_of
 from reneus_mi.render.step_state import refined
 from reneus_mi.utils.errors import ReneusError
-
-#: Face normals closer than this (1 - cos) count as one plane at a vertex (a smooth wall's facets).
-_SAME_PLANE = 1e-6
-
 
 class ContainerWalls:
     """The thickness of each inner interface's wall, from the one around it (scene units)."""
@@ -42,6 +39,9 @@ class ContainerWalls:
                               'container stated as nested interfaces (docs/containers.md)')
         #: Per inner shape: (its interface, the vertices as loaded, their mitred directions).
         self._inner = []
+        #: The smallest radius of the inner surfaces' rounded parts (inf: none): moved in further,
+        #: a rounded rim's facets would cross (the exact inset turns it sharp there).
+        self.radius = np.inf
         #: The mitred directions on the device, per inner shape (for the derivative of a corner).
         self._mitres = {}
         stated = []
@@ -51,8 +51,9 @@ class ContainerWalls:
             centres, normals, areas = [], [], []
             for shape in members:
                 v, f = _mesh_arrays(shape)
-                n, area = _face_normals(v, f)
-                D = _mitred(v, f, n)
+                n, area = face_normals(v, f)
+                D = offset_directions(v, f)
+                self.radius = min(self.radius, _rounding_radius(v, f))
                 self._inner.append((shape, g, v, D))
                 self._mitres[shape] = mi.Float(D.astype(np.float32).ravel())
                 centres.append(v[f].mean(axis=1))
@@ -70,9 +71,11 @@ class ContainerWalls:
 
     def bounds(self) -> tuple[float, float]:
         """Where a refined thickness may go: from a tenth of the thinnest stated wall to the
-        thickest plus half the smallest inner extent (the inside kept from closing)."""
+        thickest plus half the smallest inner extent (the inside kept from closing) or nine
+        tenths of the inner surfaces' smallest rounding radius, whichever is less."""
         inner = min(float(np.ptp(v, axis=0).min()) for _, _, v, _ in self._inner)
-        return 0.1 * float(self.stated.min()), float(self.stated.max()) + 0.25 * inner
+        thicker = min(0.25 * inner, 0.9 * self.radius)
+        return 0.1 * float(self.stated.min()), float(self.stated.min()) + thicker
 
     def sync(self, container: mi.Scene) -> None:
         """Rebuild the inner meshes where the thickness changed since they were last built (a
@@ -115,29 +118,17 @@ def _mesh_arrays(shape) -> tuple[np.ndarray, np.ndarray]:
             np.array(params['faces']).reshape(-1, 3))
 
 
-def _face_normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    c = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    length = np.linalg.norm(c, axis=1)
-    return c / np.maximum(length, 1e-30)[:, None], 0.5 * length
-
-
-def _mitred(v: np.ndarray, f: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Per vertex the direction D that moves every face around it (welded by position) one
-    unit along its normal: the least-norm solution of n_i · D = 1 over its distinct planes."""
-    welded = weld(v)
-    # The faces at each welded vertex: the corners sorted by it.
-    corner = welded[f].ravel()
-    order = np.argsort(corner, kind='stable')
-    ends = np.cumsum(np.bincount(corner, minlength=welded.max() + 1))
-    D = np.zeros((len(ends), 3))
-    for k, faces in enumerate(np.split(order // 3, ends[:-1])):
-        planes = []
-        for normal in n[faces]:
-            if all(1.0 - normal @ p > _SAME_PLANE for p in planes):
-                planes.append(normal)
-        if planes:      # a vertex of no face stays
-            D[k] = np.linalg.lstsq(np.array(planes), np.ones(len(planes)), rcond=None)[0]
-    return D[welded]
+def _rounding_radius(v: np.ndarray, f: np.ndarray) -> float:
+    """The smallest radius of the convex bends of a mesh between faces less than
+    :data:`~reneus_mi.geometry.container.CREASE_ANGLE` apart (a rounded rim: the distance of
+    two faces' centres over the angle between them; inf where there are none)."""
+    mesh = trimesh.Trimesh(v, f, process=True)
+    angle = mesh.face_adjacency_angles
+    bend = mesh.face_adjacency_convex & (angle > 1e-3) & (angle < np.radians(CREASE_ANGLE))
+    if not bend.any():
+        return float('inf')
+    a, b = mesh.face_adjacency[bend].T
+    return float((np.linalg.norm(mesh.triangles_center[a] - mesh.triangles_center[b], axis=1) / angle[bend]).min())
 
 
 def _thickness(around: mi.Scene, centres: np.ndarray, normals: np.ndarray, areas: np.ndarray,

@@ -38,17 +38,23 @@ class RefineConfig:
     absorption_learning_rate: float = 5e-3
     """Peak learning rate of the absorption coefficient (per scene unit)."""
     media_steps: int = 150
-    """Steps before the field's first in which the absorption (where refined) is fitted alone,
-    to the photographs rendered with the container empty: most of the container's pixels see
-    no specimen, only the medium, and measure it. Trained with the field from the start, a
-    formless field takes the tint as fog and colour first. The first half fits the pixels'
-    median (L1), the second their mode (a robust loss whose scale shrinks: ``media_scale``),
-    the specimen's pixels falling out of the fit; the field then refines it with the rest from
-    ``after`` (docs/containers.md). 0: no such fit."""
+    """Steps before the field's first in which the absorption and the walls' thickness (where
+    refined) are fitted alone, to the photographs rendered with the container empty: most of the
+    container's pixels see no specimen, only the medium and the board through the glass, and
+    measure them. Trained with the field from the start, a formless field takes the tint as fog
+    and colour first, and fits itself to a wrong wall (a case's 3 mm glass stated 1.5: 2.16 mm
+    after 10 minutes). The walls are searched for first (``wall_rays``); then the absorption's
+    first half fits the pixels' median (L1), the second their mode (a robust loss whose scale
+    shrinks: ``media_scale``), the specimen's pixels falling out of the fit; the field then
+    refines both with the rest from ``after`` (docs/containers.md). 0: no such fit."""
     media_rays: int = 1024
     """Camera rays a step of that fit (through the centres of pixels drawn uniformly)."""
     media_learning_rate: float = 0.05
-    """Peak learning rate of that fit (per scene unit; it decays to 0 over its steps)."""
+    """Peak learning rate of the absorption in that fit (per scene unit; it decays to 0 over its
+    steps)."""
+    wall_rays: int = 16384
+    """Camera rays at which each thickness of the walls is scored before the field's first
+    step (through the centres of pixels drawn uniformly; :meth:`~reneus_mi.train.trainer.Trainer.search_walls`)."""
     media_scale: tuple[float, float] = (0.1, 0.02)
     """First and last scale of the robust loss of that fit's second half
     (:func:`~reneus_mi.train.losses.welsch`, on gamma-encoded colours), shrinking geometrically:
@@ -81,7 +87,7 @@ class RefineConfig:
 
     def __post_init__(self):
         check_numbers(self, positive=('ior_learning_rate', 'absorption_learning_rate', 'media_learning_rate',
-                                      'media_rays', 'wall_learning_rate', 'pose_learning_rate', 'light_learning_rate'),
+                                      'media_rays', 'wall_rays', 'wall_learning_rate', 'pose_learning_rate', 'light_learning_rate'),
                       at_least_zero=('after', 'silhouette_weight', 'media_steps'))
         check_choice(self, 'light', ('none',) + LIGHTS[1:])
         lo, hi = self.ior_range

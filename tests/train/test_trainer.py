@@ -15,7 +15,7 @@ from reneus_mi.config import TrainConfig
 from reneus_mi import runs
 from reneus_mi.train.trainer import next_batch, training_bytes
 from reneus_mi.utils.errors import ReneusError
-from tiny import new_trainer, tiny_run
+from tiny import new_trainer, tiny_dataset, tiny_run
 
 
 def test_traverse_shows_the_trained_weights(scene_xml, tmp_path):
@@ -134,3 +134,15 @@ def test_rays_through_the_container_edges_are_left_out_of_the_colour_loss(scene_
         colour[margin] = trainer.step().terms['color']
         drawn_by_error[margin] = int(np.sum(np.array(trainer.pixels.error) > 0.0))
     assert colour[100.0] < 0.1 * colour[0.0] and drawn_by_error[100.0] < 0.1 * drawn_by_error[0.0]
+
+
+def test_walls_are_not_searched_without_a_board(tmp_path_factory, tmp_path):
+    # In uniform light the empty glass shows that light whatever its walls (Trainer.fit_media):
+    # a search would follow the specimen's pixels alone. The field's refinement sees them.
+    scene_xml = tiny_dataset(tmp_path_factory.getbasetemp() / 'tiny_case', container='case')
+    trainer = new_trainer(scene_xml, tmp_path, **{'refine.wall': True})
+    before = trainer.refined_values()['container.wall']
+    trainer.fit_media()
+    assert trainer.refined_values()['container.wall'] == before
+    trainer.search_walls()
+    assert trainer.refined_values()['container.wall'] != before
