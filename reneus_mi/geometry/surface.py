@@ -244,20 +244,27 @@ def largest_component(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return _keep_faces(mesh, labels == np.argmax(vertices))
 
 
-def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+def clean(mesh: trimesh.Trimesh, container: trimesh.Trimesh | None = None) -> trimesh.Trimesh:
     """Drop floating fragments, keep the object's parts: the largest component, every
     component within :data:`CLEAN_GAP` median edge lengths of what is kept (thin parts
     that noise cut off lie next to the body: kept link by link) unless it is a speck, and
-    any component of at least :data:`CLEAN_SHARE` of the largest's area (a real second part)."""
+    any component of at least :data:`CLEAN_SHARE` of the largest's area (a real second part)
+    that does not touch ``container``'s surface within that gap: one that does is a fake wall
+    (the paper's term), a sheet the field painted on the glass where the photographs and the
+    model of the container part (measured: sheets 0.007-0.2 mm from a rounded block's faces,
+    12-18 mm from its ant; docs/containers.md)."""
 
     if len(mesh.faces) == 0:
         return mesh.copy()
     labels = component_labels(mesh)
     area = np.bincount(labels, weights=mesh.area_faces)
-    keep = (area >= CLEAN_SHARE * area.max())
-    keep[np.argmax(area)] = True
     gap = CLEAN_GAP * float(np.median(mesh.edges_unique_length))
     vertices = [np.unique(mesh.faces[labels == c]) for c in range(len(area))]
+    keep = (area >= CLEAN_SHARE * area.max())
+    if container is not None:
+        parts = np.flatnonzero(keep)
+        keep[parts] = ~_touching(mesh.vertices, [vertices[c] for c in parts], container, gap)
+    keep[np.argmax(area)] = True
     grown = True
     while grown and not keep.all():
         tree = cKDTree(mesh.vertices[np.concatenate([vertices[c] for c in np.flatnonzero(keep)])])
@@ -266,6 +273,18 @@ def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
         keep[near] = True
         grown = bool(near)
     return _keep_faces(mesh, keep[labels])
+
+
+def _touching(points: np.ndarray, groups: list[np.ndarray], surface: trimesh.Trimesh, gap: float) -> np.ndarray:
+    """Per group of ``points`` (indices), whether one of them lies within ``gap`` of
+    ``surface``: measured to the surface's points spaced at most ``gap`` / 2 apart (so up to a
+    quarter of the gap more than the true distance)."""
+    spacing = 0.5 * gap
+    count = int(min(np.ceil(surface.area / spacing ** 2), 4_000_000))
+    samples = trimesh.sample.sample_surface_even(surface, count, seed=0)[0]
+    tree = cKDTree(np.concatenate([samples, surface.vertices]))
+    return np.array([tree.query(points[g], distance_upper_bound=gap + spacing)[0].min() <= gap + 0.5 * spacing
+                     for g in groups])
 
 
 def _keep_faces(mesh: trimesh.Trimesh, mask: np.ndarray) -> trimesh.Trimesh:
@@ -286,13 +305,14 @@ def crop(mesh: trimesh.Trimesh, container: trimesh.Trimesh) -> trimesh.Trimesh:
 def postprocess(mesh: trimesh.Trimesh, mode: str, container: trimesh.Trimesh | None = None) -> trimesh.Trimesh:
     """Apply one rule of :data:`POSTPROCESS_MODES` to a copy of ``mesh``.
 
-    ``'clean'`` drops floating fragments and keeps the object's parts (:func:`clean`),
+    ``'clean'`` drops floating fragments and keeps the object's parts (:func:`clean`; with
+    ``container``, not the sheets that touch it),
     ``'largest'`` is the paper's (largest component by vertex count: a leg that noise
     cut off goes with the fragments), ``'crop'`` keeps what lies inside ``container``,
     ``'none'`` returns a copy.
     """
     if mode == 'clean':
-        return clean(mesh)
+        return clean(mesh, container)
     if mode == 'largest':
         return largest_component(mesh)
     if mode == 'crop':
@@ -345,7 +365,7 @@ def field_mesh(field: Field, frame: FieldFrame, resolution: int, mode: str, cont
     Marching cubes runs on the grid of ``resolution`` points per axis over the container's
     box in the field's frame (:meth:`FieldFrame.field_box`), over the part of it that holds
     the surface only (:func:`surface_box`); ``container`` is the container mesh file, needed by
-    ``mode='crop'``.
+    ``mode='crop'`` and used by ``'clean'`` (in the world's coordinates, as the mesh).
     """
     box = frame.field_box()
     lo, hi, counts = mesh_grid(*box, resolution, surface_box(field, *box))
@@ -355,11 +375,9 @@ def field_mesh(field: Field, frame: FieldFrame, resolution: int, mode: str, cont
         gap = min(1.0 / float(np.asarray(field.inv_s()).ravel()[0]), BRIDGE_CELLS * cell)
     with dr.suspend_grad():
         mesh = extract_mesh(field, lo, hi, counts, to_world=frame.to_world_matrix(), gap=gap)
-    if mode == 'crop':
-        if not container:
-            raise ReneusError("postprocess 'crop' needs the container mesh, and none is recorded")
-        return postprocess(mesh, mode, load_container(container))
-    return postprocess(mesh, mode, None)
+    if mode == 'crop' and not container:
+        raise ReneusError("postprocess 'crop' needs the container mesh, and none is recorded")
+    return postprocess(mesh, mode, load_container(container) if container and mode in ('clean', 'crop') else None)
 
 
 def field_colors(field: Field, frame: FieldFrame, vertices: np.ndarray, gamma: float,

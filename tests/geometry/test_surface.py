@@ -124,6 +124,21 @@ def test_clean_drops_floaters_and_keeps_cut_off_parts():
     assert components(postprocess(mesh, 'largest')) == 1
 
 
+def test_clean_drops_the_sheets_that_touch_the_container():
+    """A fake wall (a sheet the field paints on the glass, as on a rounded block's faces) goes
+    however large; the real parts stay, the second part 0.25 from the container included. Without
+    the container rule the sheet is kept (5 + 1 components): this test fails then."""
+    from reneus_mi.geometry.surface import components
+    container = trimesh.creation.box(extents=(3.0, 3.4, 2.4))       # faces at x = ±1.5, y = ±1.7
+    sheet = trimesh.creation.box(extents=(0.8, 0.02, 0.6))
+    sheet.apply_translation((0.6, -1.69, 0.3))                        # against the face y = -1.7
+    mesh = trimesh.util.concatenate([_body_with_fragments(), sheet])
+    assert components(postprocess(mesh, 'clean')) == 6
+    kept = postprocess(mesh, 'clean', container)
+    assert components(kept) == 5
+    assert kept.bounds[0][1] > -1.5 and kept.bounds[1][1] > 1.4        # the sheet gone, the part kept
+
+
 #: The bridge tests' gap: 0.6 cells of their 97-point grid over [-1, 1] (a sharp field's 1/s is
 #: under a cell).
 _GAP = 0.6 * 2.0 / 96
