@@ -259,8 +259,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             hit = self._intersect(surroundings, rays, lanes)
             if depth == 0:
                 acc.mark_container(rays.camera, hit.valid)
-            if depth <= 1 and surroundings.creases is not None:
-                acc.mark_edge(rays.camera, hit.valid & surroundings.near_crease(hit.p))
+            if depth <= 1 and surroundings.flags_edges:
+                acc.mark_edge(rays.camera, hit.valid & surroundings.near_edge(hit.p, hit.si))
             leaving = hit.valid & (dr.dot(rays.d, hit.n) > 0)
             acc.add(rays.camera, rays.β * outside(rays.o, rays.d, ~hit.valid, lanes), ~hit.valid)
             in_field = hit.valid & (rays.region == field) & self.state.field
@@ -347,7 +347,7 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
             n, n_s = pose.normal_to_world(si.n, lanes), pose.normal_to_world(n_s, lanes)
         else:
             n = si.n
-        return _Hit(t=t, p=mi.Point3f(rays.o + t * rays.d), n=n, n_s=n_s, valid=si.is_valid(), group=group)
+        return _Hit(t=t, p=mi.Point3f(rays.o + t * rays.d), n=n, n_s=n_s, valid=si.is_valid(), group=group, si=si)
 
     def _trace_neus(self, surroundings, rays, acc, jitter):
         # Plain NeuS: the field's unit bounding sphere, ambient beyond it.
@@ -529,6 +529,8 @@ class _Hit:
     valid: mi.Bool
     group: mi.UInt32
     """The interface met."""
+    si: mi.SurfaceInteraction3f
+    """Mitsuba's intersection (in the container's frame): the shape and triangle met."""
 
 
 def _peak(β: mi.Color3f) -> mi.Float:

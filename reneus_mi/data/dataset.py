@@ -21,8 +21,10 @@ neither format has a field for are stored under the same JSON keys in both:
   ``IOR`` its int_ior, ``absorption`` its medium's), each ``ext_ior`` the ``int_ior`` of the one
   around it (1 for the first), ``absorption`` optional;
 - ``"capture"``: what ``reneus_mi.capture`` knows of the world (:mod:`reneus_mi.capture.writer`):
-  ``units`` and ``frame`` of the coordinates, and ``board``, the printed board the container
-  stands on (:class:`PrintedBoard`), which the scene writer puts into the scene.
+  ``units`` and ``frame`` of the coordinates, ``board``, the printed board the container
+  stands on (:class:`PrintedBoard`), which the scene writer puts into the scene, and
+  ``container``, what the capture was told and measured of it (``shape``, ``edge_mm``: a
+  block's rounded edges, from which the scene writer sets ``model.render.edge_margin``).
 """
 from __future__ import annotations
 
@@ -136,6 +138,9 @@ class Dataset:
     #: millimetres in the board's frame).
     units: str | None = None
     frame: str | None = None
+    #: The radius of a solid block's rounded edges (world units; 0: sharp), where a capture
+    #: states or measured its block (``capture.container``: ``shape`` box or rounded, ``edge_mm``).
+    edge: float | None = None
 
     def __len__(self) -> int:
         return len(self.images)
@@ -337,10 +342,17 @@ def _rgb(value, ok, where: str, expected: str) -> np.ndarray:
 
 
 def _read_capture(capture, root: str, where: str) -> dict:
-    """The units, frame and printed board of a ``capture`` entry (see the module docstring)."""
+    """The units, frame, block's edge radius and printed board of a ``capture`` entry (see the
+    module docstring)."""
     if not isinstance(capture, dict):
         raise ReneusError(f'{where}: expected an object with units, frame and board, got {capture!r}')
     out = {key: capture[key] for key in ('units', 'frame') if isinstance(capture.get(key), str)}
+    container = capture.get('container')
+    if isinstance(container, dict) and container.get('shape') in ('box', 'rounded'):
+        edge = container.get('edge_mm') or 0.0
+        if not (isinstance(edge, (int, float)) and np.isfinite(edge) and edge >= 0):
+            raise ReneusError(f'{where}.container.edge_mm: {edge!r}; expected a radius >= 0 in millimetres')
+        out['edge'] = float(edge) if container.get('shape') == 'rounded' else 0.0
     board = capture.get('board')
     if board is None:
         return out
@@ -436,7 +448,8 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
              need_container: bool, container: str | None = None, ior: float | None = None,
              gt_mesh: str | None = None, scale_mat: np.ndarray | None = None,
              ambient: np.ndarray | None = None, absorption: np.ndarray | None = None,
-             inner: tuple[Interface, ...] = (), board: PrintedBoard | None = None, units: str | None = None, frame: str | None = None, mask_sources: list[str] | None = None) -> Dataset:
+             inner: tuple[Interface, ...] = (), board: PrintedBoard | None = None, units: str | None = None,
+             frame: str | None = None, edge: float | None = None, mask_sources: list[str] | None = None) -> Dataset:
     """Check what a reader found and build the :class:`Dataset`.
 
     ``files`` are the image paths (for messages); ``masks`` may hold None for
@@ -475,6 +488,6 @@ def assemble(*, images: list[np.ndarray], masks: list[np.ndarray | None], K: np.
                  K=np.asarray(K, np.float64), c2w=np.asarray(c2w, np.float64), names=list(names),
                  root=root, container=container, ior=ior, gt_mesh=gt_mesh, scale_mat=scale_mat,
                  ambient=ambient, absorption=absorption, inner=inner, masks_measured=not missing, board=board,
-                 units=units, frame=frame)
+                 units=units, frame=frame, edge=edge)
     ds.validate()
     return ds

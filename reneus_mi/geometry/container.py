@@ -130,18 +130,40 @@ def corner_normals(vertices, faces, normals=None, crease_angle: float = CREASE_A
     return n_corner.reshape(-1, 3, 3).astype(np.float32)
 
 
-def crease_edges(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE) -> np.ndarray:
-    """The edges (M,2,3) of a Mitsuba mesh as loaded where its faces meet at more than
-    ``crease_angle`` degrees (a box's twelve edges; a jar's rims), its vertices welded as
-    :func:`corner_normals` welds them."""
+def container_edges(shape: mi.Mesh, crease_angle: float = CREASE_ANGLE,
+                    margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Where a Mitsuba mesh as loaded has edges, its vertices welded as :func:`corner_normals`
+    welds them: the segments (M,2,3) within ``margin`` of which a point is near an edge, and
+    per face whether it lies on a rounding (then every point of it is).
+
+    An edge is a crease (faces meeting at more than ``crease_angle`` degrees: a box's twelve
+    edges, a jar's sharp rims) or a rounding: where the surface turns by more than
+    ``crease_angle`` within ``margin`` (a polished block's rounded edges and corners, a jar's
+    rounded rims; not a jar's side or a sphere, whose radius is large against the margin).
+    Between two faces the turn is their angle over the distance across the edge between
+    their centroids; a rounding's segments are its borders with the faces around it."""
     params = mi.traverse(shape)
     v = np.array(params['vertex_positions'], np.float64).reshape(-1, 3)
     index = weld(v)
     welded = np.zeros((index.max() + 1, 3))
     welded[index] = v
     mesh = trimesh.Trimesh(welded, index[np.array(params['faces']).reshape(-1, 3)], process=False)
-    sharp = mesh.face_adjacency_angles > np.radians(crease_angle)
-    return mesh.vertices[mesh.face_adjacency_edges[sharp]]
+    angle, edges, pairs = np.degrees(mesh.face_adjacency_angles), mesh.face_adjacency_edges, mesh.face_adjacency
+    crease = angle > crease_angle
+    rounded = np.zeros(len(mesh.faces), bool)
+    if margin > 0.0:
+        a, b = mesh.vertices[edges[:, 0]], mesh.vertices[edges[:, 1]]
+        along = (b - a) / np.maximum(np.linalg.norm(b - a, axis=1), 1e-30)[:, None]
+
+        def across(c):
+            w = c - a
+            return np.linalg.norm(w - np.einsum('ij,ij->i', w, along)[:, None] * along, axis=1)
+        centres = mesh.triangles_center
+        width = across(centres[pairs[:, 0]]) + across(centres[pairs[:, 1]])
+        bend = ~crease & (angle * margin > crease_angle * np.maximum(width, 1e-30))
+        rounded[pairs[bend].ravel()] = True
+    border = crease | (rounded[pairs[:, 0]] != rounded[pairs[:, 1]])
+    return mesh.vertices[edges[border]], rounded
 
 
 def weld(v: np.ndarray) -> np.ndarray:

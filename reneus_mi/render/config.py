@@ -54,9 +54,11 @@ class RenderConfig:
     smoother surfaces use the file's stored normals, or the mean of their faces' normals."""
     edge_margin: float = 0.0
     """Camera rays that enter or leave the container within this distance (scene units) of
-    one of its crease edges are flagged, and training leaves them out of its colour loss: a
-    block stated as sharp but polished round at its edges bends them otherwise than the
-    model (0: every ray counts)."""
+    one of its edges are flagged, and training leaves them out of its colour loss: a crease,
+    or a rounding (where the surface turns by more than `crease_angle` within the margin; a ray
+    through the rounding itself is flagged too). A block polished round bends them otherwise
+    than any model of it the photographs give (0: every ray counts; the scene writer sets it
+    for a capture's rounded block, ``reneus_mi.scene.edge_settings``)."""
 
     def __post_init__(self):
         check_choice(self, 'mode', MODES)

@@ -32,7 +32,7 @@ import mitsuba as mi
 import numpy as np
 import trimesh
 
-from reneus_mi.geometry.container import CREASE_ANGLE, crease_edges, is_container, scene_of, shading_normals
+from reneus_mi.geometry.container import CREASE_ANGLE, container_edges, is_container, scene_of, shading_normals
 from reneus_mi.render.board_shading import SHADING_LR_SCALE, BoardShading, uv_aspect
 from reneus_mi.render.interfaces import Interfaces, interfaces_of
 from reneus_mi.render.light import Light, emitter_radiance
@@ -70,14 +70,16 @@ class Surroundings:
         #: The shading normals of each mesh's triangle corners (the container's optics).
         self.normals = {shape: shading_normals(shape, crease_angle) for shape in shapes
                         if isinstance(shape, mi.Mesh)}
-        #: The container's crease edges, ends a and b (None: rays near them are not flagged;
-        #: a smooth container has none).
-        self.creases = None
+        #: The container's edges (``container_edges``) where rays are flagged: the segments'
+        #: ends a and b (None: none), and the meshes whose faces on a rounding are flagged whole.
+        self.creases, self.rounded = None, []
         self.edge_margin = edge_margin
-        segments = [crease_edges(shape, crease_angle) for shape in self.normals] if edge_margin > 0.0 else []
-        if sum(map(len, segments)):
-            ends = np.concatenate(segments).astype(np.float32)
+        edges = [(shape, *container_edges(shape, crease_angle, edge_margin)) for shape in self.normals] \
+            if edge_margin > 0.0 else []
+        if sum(len(segments) for _, segments, _ in edges):
+            ends = np.concatenate([segments for _, segments, _ in edges]).astype(np.float32)
             self.creases = tuple(mi.Point3f(*(mi.Float(ends[:, end, i]) for i in range(3))) for end in (0, 1))
+        self.rounded = [(shape, mi.Bool(faces)) for shape, _, faces in edges if faces.any()]
         self.emitter = emitter
         self.light = None if light == 'emitter' else Light(light, emitter)
         self.pose = ContainerPose(pivot) if pose else None
@@ -184,9 +186,21 @@ class Surroundings:
         """Radiance arriving from direction ``d`` outside the container (C_out)."""
         return emitter_radiance(self.emitter, d) if self.light is None else refined(self.light.eval(d), lanes)
 
-    def near_crease(self, p: mi.Point3f) -> mi.Bool:
-        """Whether each point lies within ``edge_margin`` of a crease edge of the container as
-        loaded (the pose, a fraction of a millimetre, is left out)."""
+    @property
+    def flags_edges(self) -> bool:
+        """Whether rays near the container's edges are flagged (``edge_margin``, and edges)."""
+        return self.creases is not None or bool(self.rounded)
+
+    def near_edge(self, p: mi.Point3f, si: mi.SurfaceInteraction3f) -> mi.Bool:
+        """Whether each hit ``si`` at ``p`` lies on a rounding of the container or within
+        ``edge_margin`` of an edge's segment, as loaded (the pose, a fraction of a millimetre,
+        is left out)."""
+        near = dr.zeros(mi.Bool, dr.width(p.x))
+        for shape, faces in self.rounded:
+            near |= (si.shape == mi.ShapePtr(shape)) & dr.gather(mi.Bool, faces, si.prim_index, si.is_valid())
+        return near if self.creases is None else near | self._near_segment(p)
+
+    def _near_segment(self, p: mi.Point3f) -> mi.Bool:
         a, b = self.creases
         count = dr.opaque(mi.UInt32, dr.width(a.x))
         r2 = dr.opaque(mi.Float, self.edge_margin ** 2)

@@ -221,6 +221,8 @@ def test_dataset_reads_back_in_millimetres(made, shot):
     # The PLY holds float32: 1e-5 mm at 150 mm from the origin.
     np.testing.assert_allclose(block.extents, shot['meta']['container']['size_mm'], atol=1e-4)
     np.testing.assert_allclose(block.bounds[:, 2], [-25.0, 0.0], atol=1e-4)
+    # A sharp block: no rounding whose rays the scene would leave out (scene.edge_settings).
+    assert ds.edge == 0.0
     assert ds.masks.any(axis=(1, 2)).all()
     # Exposures normalised: the white print is equally bright in every image.
     assert len(os.listdir(made['out'] / 'overlays')) == len(ds)

@@ -60,3 +60,21 @@ def test_the_dataset_holds_the_rounded_block(rounded):
     assert np.abs(rounded_box_distance(local, RIG.size_mm, RIG.edge_mm)).max() < 0.6
     sharp = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * 0.5 * np.asarray(RIG.size_mm)
     assert np.abs(rounded_box_distance(sharp, RIG.size_mm, RIG.edge_mm)).max() > 1.0
+
+
+def test_the_scene_leaves_the_rays_through_the_rounding_out(rounded, tmp_path):
+    """The dataset says the radius the capture measured, and the scene written for it flags the
+    camera rays through the rounding and 1.6 radii of it (scene.EDGE_MARGIN_RADII), unless
+    --set gives a margin; the sharp block of test_capture.py gets none (its edges bend light as
+    the model does)."""
+    from reneus_mi import scene
+    from reneus_mi.data import load_dataset
+    from reneus_mi.render.loading import load_scene
+    edge = rounded['report']['container']['edge_mm']
+    assert load_dataset(str(rounded['root'] / 'dataset')).edge == pytest.approx(edge)
+    margins = {}
+    for name, given in (('measured', []), ('given', ['--set', 'model.render.edge_margin=0.5'])):
+        xml = str(tmp_path / f'{name}.xml')
+        assert scene.main([str(rounded['root'] / 'dataset'), '-o', xml, *given]) == 0
+        margins[name] = load_scene(xml).integrator().model.render.edge_margin
+    assert margins == {'measured': pytest.approx(scene.EDGE_MARGIN_RADII * edge, rel=1e-3), 'given': 0.5}

@@ -18,6 +18,7 @@ import drjit as dr
 import mitsuba as mi
 from reference import BLOCK_HALF, BLOCK_ROTATION, path_reference, path_scene, reneus_pixels, reneus_scene
 from reneus_mi.geometry.container import container_shape, corner_normals, shading_mesh
+from reneus_mi.geometry.shapes import container_mesh
 
 RES = 24
 #: The tolerances of the integrator's comparison with ``path`` (test_integrator.py).
@@ -179,16 +180,21 @@ def test_cylinder_is_smooth_around_and_sharp_at_its_rims(sections):
     assert np.abs(n[~side] - _face_normals(cylinder)[~side]).max() < 1e-6
 
 
-@pytest.mark.parametrize('shape', ['box', 'cylinder', 'sphere'])
-def test_rays_near_a_crease_are_flagged(shape, tmp_path):
+@pytest.mark.parametrize('shape', ['box', 'cylinder', 'sphere', 'rounded'])
+def test_rays_near_an_edge_are_flagged(shape, tmp_path):
     # model.render.edge_margin: a ray straight through the container is flagged where it enters
-    # or leaves within the margin of an edge where faces meet at a crease, and only there: a
-    # box's twelve edges (written one vertex per corner, as a soup), a jar's two rims and not
-    # its smooth side; a smooth container (a rounded block) has no crease.
+    # or leaves within the margin of an edge, and only there: a box's twelve edges (written one
+    # vertex per corner, as a soup), a jar's two rims and not its smooth side, a block's edges
+    # rounded at 1.5 margins (the rounding itself and the margin beyond it), not a
+    # sphere (the surface turns by 6 degrees within the margin: no edge).
     margin = 0.1
     mesh = {'box': lambda: trimesh.creation.box(extents=(2.0, 2.0, 2.0)),
             'cylinder': lambda: trimesh.creation.cylinder(radius=1.0, height=2.0, sections=64),
-            'sphere': lambda: trimesh.creation.icosphere(subdivisions=4, radius=1.0)}[shape]()
+            'sphere': lambda: trimesh.creation.icosphere(subdivisions=4, radius=1.0),
+            # Outer half-size 1, its edges rounded at 0.15 (flat for |y|, |z| <= 0.85): a ray at
+            # z = 0.985 meets the rounding 0.16 from its border, flagged for being on it.
+            'rounded': lambda: container_mesh('rounded', [1.0 - 0.15 * (1.0 - 1.0 / np.sqrt(3.0))] * 3,
+                                              edge=0.15)}[shape]()
     mesh.unmerge_vertices()
     path = _write(str(tmp_path), f'{shape}.ply', mesh)
     scene = reneus_scene(8, mesh=path, field_radius=0.05, edge_margin=margin)
@@ -197,6 +203,9 @@ def test_rays_near_a_crease_are_flagged(shape, tmp_path):
     z, y = (g.ravel() for g in np.meshgrid(np.linspace(-0.985, 0.985, 40), [-0.95, -0.5, 0.0, 0.5, 0.95]))
     ray = mi.Ray3f(mi.Point3f(5.0, mi.Float(y), mi.Float(z)), mi.Vector3f(-1.0, 0.0, 0.0))
     near = np.array(scene.integrator().render_rays(scene, ray).near_edge)
-    expected = (((1.0 - np.abs(z) < margin) & (shape != 'sphere'))
-                | ((shape == 'box') & (1.0 - np.abs(y) < margin)))
+    border = 0.85 if shape == 'rounded' else 1.0
+    # The rounded block's cross-section is a square rounded at 0.15: rays past its corners miss.
+    hits = np.hypot(np.maximum(np.abs(y) - border, 0.0), np.maximum(np.abs(z) - border, 0.0)) < 1.0 - border + 1e-6
+    expected = hits & (((border - np.abs(z) < margin) & (shape != 'sphere'))
+                       | ((shape in ('box', 'rounded')) & (border - np.abs(y) < margin)))
     assert np.array_equal(near, expected) and near.any() == (shape != 'sphere')
