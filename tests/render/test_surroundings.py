@@ -167,8 +167,8 @@ def test_smooth_container_comparison_has_teeth(rounded_block, monkeypatch):
     from reneus_mi.plugins import reneus as plugin
     original = plugin._Hit
 
-    def flat(t, p, n, n_s, valid, group):
-        return original(t, p, n, n, valid, group)
+    def flat(t, p, n, n_s, valid, group, si):
+        return original(t, p, n, n, valid, group, si)
     mean, _ = path_reference(path_scene(24, max_depth=3, mesh=rounded_block), 1024)
     monkeypatch.setattr(plugin, '_Hit', flat)
     reneus = reneus_pixels(reneus_scene(24, mesh=rounded_block, max_depth=2, terminal='black'))
