@@ -72,13 +72,13 @@ class Surroundings:
                         if isinstance(shape, mi.Mesh)}
         #: The container's edges (``container_edges``) where rays are flagged: the segments'
         #: ends a and b (None: none), and the meshes whose faces on a rounding are flagged whole.
-        self.creases, self.rounded = None, []
+        self.edge_segments = None
         self.edge_margin = edge_margin
         edges = [(shape, *container_edges(shape, crease_angle, edge_margin)) for shape in self.normals] \
             if edge_margin > 0.0 else []
         if sum(len(segments) for _, segments, _ in edges):
             ends = np.concatenate([segments for _, segments, _ in edges]).astype(np.float32)
-            self.creases = tuple(mi.Point3f(*(mi.Float(ends[:, end, i]) for i in range(3))) for end in (0, 1))
+            self.edge_segments = tuple(mi.Point3f(*(mi.Float(ends[:, end, i]) for i in range(3))) for end in (0, 1))
         self.rounded = [(shape, mi.Bool(faces)) for shape, _, faces in edges if faces.any()]
         self.emitter = emitter
         self.light = None if light == 'emitter' else Light(light, emitter)
@@ -189,7 +189,7 @@ class Surroundings:
     @property
     def flags_edges(self) -> bool:
         """Whether rays near the container's edges are flagged (``edge_margin``, and edges)."""
-        return self.creases is not None or bool(self.rounded)
+        return self.edge_segments is not None or bool(self.rounded)
 
     def near_edge(self, p: mi.Point3f, si: mi.SurfaceInteraction3f) -> mi.Bool:
         """Whether each hit ``si`` at ``p`` lies on a rounding of the container or within
@@ -198,10 +198,10 @@ class Surroundings:
         near = dr.zeros(mi.Bool, dr.width(p.x))
         for shape, faces in self.rounded:
             near |= (si.shape == mi.ShapePtr(shape)) & dr.gather(mi.Bool, faces, si.prim_index, si.is_valid())
-        return near if self.creases is None else near | self._near_segment(p)
+        return near if self.edge_segments is None else near | self._near_segment(p)
 
     def _near_segment(self, p: mi.Point3f) -> mi.Bool:
-        a, b = self.creases
+        a, b = self.edge_segments
         count = dr.opaque(mi.UInt32, dr.width(a.x))
         r2 = dr.opaque(mi.Float, self.edge_margin ** 2)
 
