@@ -13,7 +13,7 @@ Python of a venv that has the ``bpy`` wheel, not the project's::
         'opencv-contrib-python-headless<4.12'
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH [--specimen ant|ant_thin|beetle|shell]
         [--block small|large] [--container box|jar] [--size 960x640] [--board-factor K] [--views 48] [--spp N] [--seed S]
-        [--ior 1.45] [--edge-mm R] [--preview]
+        [--ior 1.45] [--edge-mm R | --bow-mm S] [--preview]
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH --check
     /work/venvs/bpy/bin/python bench/blender_capture.py PHOTOS --truth TRUTH --reduce-from SRC_PHOTOS SRC_TRUTH \
         --size 960x640
@@ -31,6 +31,7 @@ world is the same turned 180 degrees about x, so that its z is up):
 - the light tent: a constant world of radiance 1;
 - the block: a W x D x H box of Glass BSDF (roughness 0) standing on the board at a place
   ``(x, y, yaw)`` near its centre; caustics on, so its shadow and caustics fall on the print;
+  polished round (``--edge-mm``) or convex (``--bow-mm``) where asked, stated as a sharp box;
   or (``--container jar``) a closed glass jar, a cylinder whose walls, lid and floor are
   ``JAR_WALL_MM`` thick, filled with ethanol (IOR 1.36), its rims sharp, stated to the capture
   as a cylinder with ``wall_mm``, ``liquid_ior`` and ``edge_mm`` 0;
@@ -69,6 +70,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import blender_set as bs  # noqa: E402  (exits with a hint without bpy)
+import bmesh  # noqa: E402
 import bpy  # noqa: E402
 import cv2  # noqa: E402
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
@@ -87,6 +89,9 @@ JAR_WALL_MM = 2.0
 LIQUID_IOR = 1.36
 #: Facets of a quarter circle of a rounded block's edge (``--edge-mm``).
 EDGE_SEGMENTS = 12
+#: Cuts of each edge of a bowed block (``--bow-mm``): 0.8 mm facets on the small block's 40 mm
+#: side, whose normals differ by 0.1 degrees at a bow of 0.3 mm (flat-shaded, as cut).
+BOW_CUTS = 48
 #: The capture's name of each container's shape.
 SHAPES = {'box': 'box', 'jar': 'cylinder'}
 #: Sides of the jar's cylinder (Blender's primitive and the truth's mesh alike).
@@ -481,6 +486,8 @@ def make_container(rig: dict) -> list:
                 node.inputs['IOR'].default_value = rig['ior']
         if rig['edge_mm']:
             round_edges(ob, rig['edge_mm'])
+        if rig['bow_mm']:
+            bow_faces(ob, (0.5 * W, 0.5 * D, 0.5 * H), -rig['pose'][2], rig['bow_mm'])
         obs = [ob]
     for ob in obs:
         ob.location = (rig['pose'][0], -rig['pose'][1], 0.5 * H)
@@ -496,6 +503,31 @@ def round_edges(ob, radius: float) -> None:
     mod.width, mod.segments, mod.limit_method, mod.harden_normals = radius, EDGE_SEGMENTS, 'NONE', True
     bpy.context.view_layer.objects.active = ob
     bpy.ops.object.modifier_apply(modifier='round')
+
+
+def bow_faces(ob, half, yaw: float, bow: float) -> None:
+    """A block polished convex: its four sides and its top bulge out by ``bow`` mm at their
+    centres, 0 at their edges (a product of parabolas across the face); the bottom, which stands
+    on the board, stays flat. ``ob`` is the block centred on its origin, turned by ``yaw``
+    degrees about z."""
+    bm = bmesh.new()
+    bm.from_mesh(ob.data)
+    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=BOW_CUTS, use_grid_fill=True)
+    c, s = math.cos(math.radians(yaw)), math.sin(math.radians(yaw))
+    for v in bm.verts:
+        x, y, z = v.co
+        q = np.array([(c * x + s * y) / half[0], (-s * x + c * y) / half[1], z / half[2]])
+        out = np.zeros(3)
+        for a in range(3):
+            on_face = abs(abs(q[a]) - 1.0) < 1e-6 and (a < 2 or q[a] > 0.0)    # Blender's z is up
+            if on_face:
+                others = [b for b in range(3) if b != a]
+                out[a] = np.sign(q[a]) * bow * np.prod([1.0 - q[b] ** 2 for b in others])
+        v.co.x += c * out[0] - s * out[1]
+        v.co.y += s * out[0] + c * out[1]
+        v.co.z += out[2]
+    bm.to_mesh(ob.data)
+    bm.free()
 
 
 def make_camera(sc, K_r: np.ndarray, size: tuple[int, int]) -> bpy.types.Object:
@@ -615,7 +647,7 @@ def make_rig(args) -> dict:
     K = intrinsics(width, height)
     jar = dict(size_mm=JARS[args.block], wall_mm=JAR_WALL_MM, liquid_ior=LIQUID_IOR) if args.container == 'jar' else {}
     return dict(block=args.block, **{**block, **jar}, dictionary=DICTIONARY, paper_margin_mm=PAPER_MARGIN_MM,
-                container=args.container, ior=args.ior, edge_mm=args.edge_mm, pose=[round(float(v), 3) for v in pose],
+                container=args.container, ior=args.ior, edge_mm=args.edge_mm, bow_mm=args.bow_mm, pose=[round(float(v), 3) for v in pose],
                 specimen=args.specimen, width=width, height=height, K=K, distortion=list(DISTORTION),
                 views=args.views, distance_mm=float(K[0, 0] * max(board_w, board_h) / (BOARD_SPAN * width)),
                 board_factor=args.board_factor,
@@ -851,6 +883,9 @@ def main(argv=None) -> None:
     parser.add_argument('--edge-mm', type=float, default=0.0, metavar='R',
                         help="the block's edges and corners rounded to radius R mm (polished), while capture.json "
                              'states a sharp box, as a curator who has not measured them would (default: sharp)')
+    parser.add_argument('--bow-mm', type=float, default=0.0, metavar='S',
+                        help="the block's sides and top bulging out by S mm at their centres (polished convex), "
+                             'while capture.json states a flat-faced box (default: flat)')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--preview', action='store_true', help=f'render only {PREVIEW_VIEWS} of the views')
     parser.add_argument('--check', action='store_true',
@@ -861,6 +896,8 @@ def main(argv=None) -> None:
                         help="only write the legs' and antennae's axes into an existing TRUTH (as the same "
                              'arguments make them), for a capture rendered before truth.json had them')
     args = parser.parse_args(argv)
+    if args.bow_mm and (args.edge_mm or args.container != 'box'):
+        parser.error('--bow-mm bows a sharp box: not with --edge-mm or --container jar')
     cv2.setNumThreads(THREADS)
     if args.reduce_from:
         reduce_capture(*args.reduce_from, args.photos, args.truth, tuple(int(v) for v in args.size.lower().split('x')))

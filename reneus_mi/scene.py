@@ -4,8 +4,8 @@ The scene (container, ambient light, first camera, integrator, and the printed b
 of a capture with its radiance beside the XML) is
 :func:`reneus_mi.data.scene_xml.write_scene`'s. The ``reneus`` integrator's
 settings start from ``--preset``; a hash grid's finest level follows the photographs'
-pixel footprint at the specimen where that is finer, and a block polished round has the rays
-through its edges left out (:func:`edge_settings`); ``--set model.render.max_depth=3`` changes one,
+pixel footprint at the specimen where that is finer, and a capture's solid block has the rays
+through its edges, rounded or maybe so, left out (:func:`edge_settings`); ``--set model.render.max_depth=3`` changes one,
 by its dotted path in :class:`reneus_mi.config.ReconstructionConfig`, typed and
 checked as the configuration declares it, and written under its XML name.
 """
@@ -50,21 +50,29 @@ def footprint_settings(field, ds, changes: dict) -> dict:
     return {'field_finest_resolution': finest} if finest != field.finest_resolution else {}
 
 
-#: A block polished round (a capture's rounded block, stated or measured): the camera rays
-#: through its rounding and this many radii of it are left out of the loss
-#: (``model.render.edge_margin``), at least :data:`EDGE_MARGIN_PIXELS` pixel footprints. Blender's
-#: block rounded 1.5 mm, measured 1.25 by the capture, modelled sharp with 2 mm left out: Chamfer-L1
-#: 0.104 mm against the sharp block's 0.103 (docs/containers.md); the field paints walls where
-#: the model's rounding and the photographs part.
+#: A capture's solid block: the camera rays through its rounding and this many radii of it are
+#: left out of the loss (``model.render.edge_margin``), at least :data:`EDGE_MARGIN_PIXELS` pixel
+#: footprints. Blender's block rounded 1.5 mm, measured 1.25 by the capture, modelled sharp with
+#: 2 mm left out: Chamfer-L1 0.104 mm against the sharp block's 0.103 (docs/containers.md); the
+#: field paints walls where the model's rounding and the photographs part.
 EDGE_MARGIN_RADII, EDGE_MARGIN_PIXELS = 1.6, 2.0
+#: The radius, in pixel footprints, below which a block's outline does not tell its rounding
+#: from sharp: a block the capture found sharp is given the margin of this rounding. Blender's
+#: 0.5 mm rounding at 960 px (1.9 footprints) was found sharp, and left in the loss it grew walls
+#: (1.091 mm against the sharp block's 0.103); 1.5 mm (5.7) was measured 1.25.
+UNSEEN_EDGE_PIXELS = 3.0
 
 
 def edge_settings(ds, changes: dict) -> dict:
-    """The margin of a rounded block's edges (:data:`EDGE_MARGIN_RADII`), unless ``--set`` gave
-    one; as integrator properties. A sharp block's edges bend light as the model does: none."""
-    if 'model.render.edge_margin' in changes or not ds.edge or ds.inner:
+    """The margin of a capture's solid block's edges, unless ``--set`` gave one: EDGE_MARGIN_RADII
+    of its radius as stated or measured, or, where the capture found it sharp, of the largest
+    rounding its outline could have missed (:data:`UNSEEN_EDGE_PIXELS`); as integrator
+    properties. Blocks not from a capture (their files exact) and hollow containers get none."""
+    if 'model.render.edge_margin' in changes or ds.edge is None or ds.inner:
         return {}
-    return {'edge_margin': float(f'{max(EDGE_MARGIN_RADII * ds.edge, EDGE_MARGIN_PIXELS * ds.pixel_footprint()):.3g}')}
+    footprint = ds.pixel_footprint()
+    radius = ds.edge or UNSEEN_EDGE_PIXELS * footprint
+    return {'edge_margin': float(f'{max(EDGE_MARGIN_RADII * radius, EDGE_MARGIN_PIXELS * footprint):.3g}')}
 
 
 def main(argv: list[str] | None = None) -> int:

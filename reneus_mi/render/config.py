@@ -58,7 +58,7 @@ class RenderConfig:
     or a rounding (where the surface turns by more than `crease_angle` within the margin; a ray
     through the rounding itself is flagged too). A block polished round bends them otherwise
     than any model of it the photographs give (0: every ray counts; the scene writer sets it
-    for a capture's rounded block, ``reneus_mi.scene.edge_settings``)."""
+    for a capture's solid block, rounded or found sharp, ``reneus_mi.scene.edge_settings``)."""
 
     def __post_init__(self):
         check_choice(self, 'mode', MODES)

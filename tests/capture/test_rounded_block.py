@@ -65,8 +65,8 @@ def test_the_dataset_holds_the_rounded_block(rounded):
 def test_the_scene_leaves_the_rays_through_the_rounding_out(rounded, tmp_path):
     """The dataset says the radius the capture measured, and the scene written for it flags the
     camera rays through the rounding and 1.6 radii of it (scene.EDGE_MARGIN_RADII), unless
-    --set gives a margin; the sharp block of test_capture.py gets none (its edges bend light as
-    the model does)."""
+    --set gives a margin (test_capture.py: a block found sharp gets that of a rounding too small
+    for its outline to show)."""
     from reneus_mi import scene
     from reneus_mi.data import load_dataset
     from reneus_mi.render.loading import load_scene
