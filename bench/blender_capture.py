@@ -70,6 +70,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import blender_set as bs  # noqa: E402  (exits with a hint without bpy)
+from bow_profile import bulge  # noqa: E402
 import bmesh  # noqa: E402
 import bpy  # noqa: E402
 import cv2  # noqa: E402
@@ -514,18 +515,13 @@ def bow_faces(ob, half, yaw: float, bow: float) -> None:
     bm.from_mesh(ob.data)
     bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=BOW_CUTS, use_grid_fill=True)
     c, s = math.cos(math.radians(yaw)), math.sin(math.radians(yaw))
-    for v in bm.verts:
-        x, y, z = v.co
-        q = np.array([(c * x + s * y) / half[0], (-s * x + c * y) / half[1], z / half[2]])
-        out = np.zeros(3)
-        for a in range(3):
-            on_face = abs(abs(q[a]) - 1.0) < 1e-6 and (a < 2 or q[a] > 0.0)    # Blender's z is up
-            if on_face:
-                others = [b for b in range(3) if b != a]
-                out[a] = np.sign(q[a]) * bow * np.prod([1.0 - q[b] ** 2 for b in others])
-        v.co.x += c * out[0] - s * out[1]
-        v.co.y += s * out[0] + c * out[1]
-        v.co.z += out[2]
+    p = np.array([v.co[:] for v in bm.verts])
+    q = np.stack([c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1], p[:, 2]], axis=1) / half
+    out = bulge(q, bow, top=1.0)                        # Blender's z is up
+    for v, (dx, dy, dz) in zip(bm.verts, out):
+        v.co.x += c * dx - s * dy
+        v.co.y += s * dx + c * dy
+        v.co.z += dz
     bm.to_mesh(ob.data)
     bm.free()
 

@@ -17,10 +17,15 @@ import json
 import os
 import shutil
 
+import sys
+
 import numpy as np
 import trimesh
 
 from reneus_mi.capture.placement import local_mesh, pose_matrix
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bow_profile import bulge  # noqa: E402
 
 #: Halvings of the box's triangles: 2^5 = 32 facets along each side of a face.
 SUBDIVISIONS = 5
@@ -33,15 +38,8 @@ def bowed_block(size, bow: float) -> trimesh.Trimesh:
     for _ in range(SUBDIVISIONS):
         mesh = trimesh.Trimesh(*trimesh.remesh.subdivide(mesh.vertices, mesh.faces))
     half = 0.5 * np.asarray(size, np.float64)
-    v = np.asarray(mesh.vertices, np.float64).copy()
-    q = (v - [0.0, 0.0, -half[2]]) / half
-    out = np.zeros_like(v)
-    for a in range(3):
-        face = np.abs(np.abs(q[:, a]) - 1.0) < 1e-9
-        if a == 2:
-            face &= q[:, 2] < 0.0           # the top; the bottom stands on the board
-        others = [b for b in range(3) if b != a]
-        out[face, a] = np.sign(q[face, a]) * bow * np.prod(1.0 - q[face][:, others] ** 2, axis=1)
+    v = np.asarray(mesh.vertices, np.float64)
+    out = bulge((v - [0.0, 0.0, -half[2]]) / half, bow, top=-1.0)     # up is -z
     return trimesh.Trimesh(v + out, mesh.faces, process=False)
 
 
