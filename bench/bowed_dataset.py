@@ -49,6 +49,8 @@ def main(argv=None) -> None:
     parser.add_argument('out', help='the copy to write (must not exist)')
     parser.add_argument('--bow-mm', type=float, required=True, help='bulge of the sides and top at their centres')
     args = parser.parse_args(argv)
+    if os.path.exists(args.out):
+        parser.error(f'{args.out}: exists; expected a new folder (nothing is written over)')
     with open(os.path.join(args.dataset, 'transforms.json')) as f:
         container = json.load(f)['capture']['container']
     if container['shape'] != 'box':
