@@ -212,8 +212,9 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         :attr:`state` (see :meth:`begin_step`).
         """
         surroundings = self.bind(scene)
-        if surroundings.walls is not None:
-            surroundings.walls.sync(surroundings.container)
+        for moving in (surroundings.walls, surroundings.bow):
+            if moving is not None:
+                moving.sync(surroundings.container)
         n = dr.width(ray.o)
         jitter = None
         if self.state.seed is not None:
@@ -343,6 +344,8 @@ class ReNeuSIntegrator(mi.ad.integrators.common.ADIntegrator):
         # In the container's frame t is the same parameter along the ray when the direction
         # keeps its length.
         n_s = interpolated_normal(surroundings.normals, si, o + t * d, vertex)
+        if surroundings.bow is not None:
+            n_s = surroundings.bow.tilt(o + t * d, n_s, si.is_valid())
         if pose is not None:
             n, n_s = pose.normal_to_world(si.n, lanes), pose.normal_to_world(n_s, lanes)
         else:

@@ -37,12 +37,17 @@ from reneus_mi.data.dataset import CONTACT_GAP
 from reneus_mi.data.objects import load_object
 from reneus_mi.data.scene_xml import sensor_dict
 from reneus_mi.data.synthetic import write_object
+from reneus_mi.geometry.bulge import displacement
 from reneus_mi.geometry.container import shading_mesh
 from reneus_mi.geometry.shapes import write_container
 from reneus_mi.geometry.mesh import mitsuba_mesh
 from reneus_mi.paper import GAMMA
 from reneus_mi.utils import guards
+from reneus_mi.utils.errors import ReneusError
 from reneus_mi.utils.io import atomic_path, atomic_write_text
+
+#: Halvings of a bowed block's triangles (:func:`bowed_block`): a face in 32 x 32 pairs of facets.
+BOW_SUBDIVISIONS = 5
 
 
 @dataclasses.dataclass
@@ -63,6 +68,10 @@ class Rig:
     """The liquid in a hollow container; None: air."""
     edge_mm: float | None = None
     """A rounded block's edge radius; None: the generator's (a share of the smallest size)."""
+    bow_mm: float = 0.0
+    """A sharp block's four sides and top bulging out by this much at their centres, the bottom
+    on the board flat (:mod:`reneus_mi.geometry.bulge`): a polished block's faces. The
+    photographer states a box."""
     pose: tuple[float, float, float] = (117.3, 93.6, 23.0)
     """Where the container stands: footprint centre x, y (mm) and yaw (degrees)."""
     specimen: str = 'insect'
@@ -180,6 +189,22 @@ def specimen_mesh(rig: Rig) -> trimesh.Trimesh:
     return mesh
 
 
+def bowed_block(mesh: trimesh.Trimesh, rig: Rig) -> trimesh.Trimesh:
+    """The sharp block ``mesh`` (the board's frame) cut finer (:data:`BOW_SUBDIVISIONS`), its
+    sides and top bulging out by ``rig.bow_mm``."""
+    if rig.container != 'box' or rig.wall_mm is not None:
+        raise ReneusError(f'bow_mm={rig.bow_mm:g}: expected a solid sharp block (container box, no '
+                          f'wall_mm), not a {rig.container}' + (' with walls' if rig.wall_mm is not None else ''))
+    for _ in range(BOW_SUBDIVISIONS):
+        mesh = trimesh.Trimesh(*trimesh.remesh.subdivide(mesh.vertices, mesh.faces))
+    M = pose_matrix(rig.pose)
+    # The block's frame: centred, up is -z, so its top is the -z face and its bottom the +z.
+    q = (mesh.vertices - M[:3, 3]) @ M[:3, :3] + [0.0, 0.0, 0.5 * rig.size_mm[2]]
+    n = np.asarray(mesh.vertex_normals) @ M[:3, :3]
+    move = displacement(q.T, n.T, [rig.bow_mm] * 5 + [0.0], 0.5 * np.asarray(rig.size_mm))
+    return trimesh.Trimesh(mesh.vertices + move @ M[:3, :3].T, mesh.faces, process=False)
+
+
 def render_pinhole_frame(scene: mi.Scene, rig: Rig, c2w: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Linear render of a pinhole camera whose frame covers the distorted photograph, and its K."""
     K, dist = rig.K(), np.asarray(rig.distortion, np.float64)
@@ -240,6 +265,8 @@ def simulate(rig: Rig, photos: str, truth: str) -> dict:
     shapes, outside = {}, 1.0
     for interface, mesh in interfaces(rig.container, rig.size_mm, rig.ior, rig.wall_mm, rig.liquid_ior, rig.pose,
                                       rig.edge_mm):
+        if rig.bow_mm:
+            mesh = bowed_block(mesh, rig)
         path = os.path.join(truth, interface.mesh)
         write_container(mesh, path, normals=rig.container != 'box')
         shapes[os.path.splitext(interface.mesh)[0]] = shading_mesh(path, bsdf={

@@ -58,7 +58,14 @@ class RenderConfig:
     or a rounding (where the surface turns by more than `crease_angle` within the margin; a ray
     through the rounding itself is flagged too). A block polished round bends them otherwise
     than any model of it the photographs give (0: every ray counts; the scene writer sets it
-    for a capture's solid block, rounded or found sharp, ``reneus_mi.scene.edge_settings``)."""
+    for a capture's solid block, rounded or found sharp, ``reneus_mi.scene.block_settings``)."""
+    bow: bool = False
+    """Model each face of a solid block as bulging by its own amount at its centre
+    (container.bow: the six faces of its bounding box, scene units; :mod:`~reneus_mi.render.bow`),
+    found before training from the photographs rendered with the block empty, the board seen
+    through it: a polished block's faces bulge by tenths of a millimetre, which its outline does
+    not show (False: the block's file as it is; the scene writer sets it for a capture's solid
+    block on its board, ``reneus_mi.scene.block_settings``)."""
 
     def __post_init__(self):
         check_choice(self, 'mode', MODES)

@@ -33,6 +33,7 @@ import numpy as np
 import trimesh
 
 from reneus_mi.geometry.container import CREASE_ANGLE, container_edges, is_container, scene_of, shading_normals
+from reneus_mi.render.bow import ContainerBow
 from reneus_mi.render.board_shading import SHADING_LR_SCALE, BoardShading, uv_aspect
 from reneus_mi.render.interfaces import Interfaces, interfaces_of
 from reneus_mi.render.light import Light, emitter_radiance
@@ -50,7 +51,7 @@ class Surroundings:
     def __init__(self, interfaces: Interfaces | None, shapes: list, emitter: mi.Emitter, *,
                  backdrop: list = (), light: str = 'emitter', pose: bool = False, pivot=(0.0, 0.0, 0.0),
                  crease_angle: float = CREASE_ANGLE, board_texels: int = 0, absorption: bool = False,
-                 edge_margin: float = 0.0, wall: bool = False):
+                 edge_margin: float = 0.0, wall: bool = False, bow: bool = False):
         #: The nested interfaces (None: no container, mode 'neus').
         self.interfaces = interfaces
         self.container_eta = self.inner_ior = self.sigma_a = None
@@ -64,12 +65,21 @@ class Surroundings:
             self._outer = mi.UInt32(interfaces.outer)
             self._group = list(zip(shapes, interfaces.group_of_shape()))
         self.shapes = shapes
+        #: The bulge of a solid block's faces (None: flat as loaded); it cuts the block finer
+        #: first, so the tables below are of the block it bends.
+        self.bow = None
+        if bow:
+            if interfaces is None or interfaces.count > 1 or len(shapes) > 1:
+                raise ReneusError('model.render.bow: the container is not one solid block '
+                                  '(nested interfaces or several shapes); expected a block whose faces '
+                                  'may bulge (docs/containers.md)')
+            self.bow = ContainerBow(shapes[0], crease_angle)
         #: The container alone, and the backdrop shapes (None without): see the module docstring.
         self.container = scene_of(shapes)
         self.backdrop = scene_of(list(backdrop)) if backdrop else None
         #: The shading normals of each mesh's triangle corners (the container's optics).
-        self.normals = {shape: shading_normals(shape, crease_angle) for shape in shapes
-                        if isinstance(shape, mi.Mesh)}
+        self.normals = {shape: self.bow.table if self.bow is not None else shading_normals(shape, crease_angle)
+                        for shape in shapes if isinstance(shape, mi.Mesh)}
         #: The container's edges (``container_edges``) where rays are flagged: the segments'
         #: ends a and b (None: none), and the meshes whose faces on a rounding are flagged whole.
         self.edge_segments = None
@@ -117,7 +127,10 @@ class Surroundings:
             params = mi.traverse(shape)
             corners = np.array(params['vertex_positions']).reshape(-1, 3)[
                 np.array(params['faces']).reshape(-1, 3)].reshape(-1, 3)
-            parts.append((corners, np.array(table).reshape(-1, 3)))
+            normals = np.array(table, np.float64).reshape(-1, 3)
+            if self.bow is not None and shape is self.bow.shape:
+                normals = self.bow.tilted(corners, normals)
+            parts.append((corners, normals))
         x, n = (np.concatenate(a).astype(np.float64) for a in zip(*parts))
         if self.pose is not None:
             M = self.pose.matrix()
@@ -135,6 +148,8 @@ class Surroundings:
                 out[name] = array
         if self.walls is not None:
             out.update(self.walls.params())
+        if self.bow is not None:
+            out.update(self.bow.params())
         if self.pose is not None:
             out.update(self.pose.params())
         if self.light is not None:
@@ -341,4 +356,5 @@ def surroundings_of(scene: mi.Scene, render, refine) -> 'Surroundings':
     return Surroundings(interfaces_of(shapes), shapes, scene.environment(), backdrop=backdrop,
                         light=refine.light_model(), pose=refine.pose, pivot=0.5 * (bbox.min + bbox.max),
                         crease_angle=render.crease_angle, board_texels=render.board_texels,
-                        absorption=refine.absorption, edge_margin=render.edge_margin, wall=refine.wall)
+                        absorption=refine.absorption, edge_margin=render.edge_margin, wall=refine.wall,
+                        bow=render.bow)

@@ -38,8 +38,8 @@ class RefineConfig:
     absorption_learning_rate: float = 5e-3
     """Peak learning rate of the absorption coefficient (per scene unit)."""
     media_steps: int = 150
-    """Steps before the field's first in which the absorption and the walls' thickness (where
-    refined) are fitted alone, to the photographs rendered with the container empty: most of the
+    """Steps before the field's first in which the absorption, the walls' thickness (where
+    refined) and a block's faces' bulge (``model.render.bow``) are fitted alone, to the photographs rendered with the container empty: most of the
     container's pixels see no specimen, only the medium and the board through the glass, and
     measure them. Trained with the field from the start, a formless field takes the tint as fog
     and colour first, and fits itself to a wrong wall (a case's 3 mm glass stated 1.5: 2.16 mm

@@ -14,6 +14,7 @@ its files, its log, its lock and its state).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -38,6 +39,7 @@ from reneus_mi.geometry.frame import FieldFrame
 from reneus_mi.render.loading import reneus_integrator
 from reneus_mi.render.seeds import JITTER, MEDIA, step_seed
 from reneus_mi.render.step_state import StepState
+from reneus_mi.render.bow import ContainerBow
 from reneus_mi.render.walls import ContainerWalls
 from reneus_mi.train import checkpoint, losses
 from reneus_mi.train.pixel_sampler import PixelSampler
@@ -58,11 +60,39 @@ WALL_SEARCH = tuple(np.geomspace(0.4, 2.5, 13))
 #: 34 % to 0.4 % of the stated thickness).
 WALL_GOLDEN = 8
 GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
+#: A face's bulges first scored, times its smaller half-side: from 4 % in (concave) to 4 % out,
+#: BOW_STEP apart (Blender's block bowed 0.3 mm: 2.7 % of its sides' 11 mm, 2 % of its top's 15).
+BOW_STEP = 0.01
+BOW_SEARCH = tuple(np.arange(-4, 5) * BOW_STEP)
+#: Rounds over the six faces (one face's bulge moves what another's rays see: Blender's block's
+#: bottom came out 0.08 mm after one, 0.02 after two; its truth 0).
+BOW_PASSES = 2
 #: Rays per kernel launch when rendering a whole view.
 RENDER_CHUNK = 1 << 14
 #: Mask margin while the container's pose is refined, as a fraction of the container's size in
 #: the image: covers the 2-5 % pose errors a calibration leaves.
 POSE_MARGIN = 0.1
+
+
+def golden_search(loss, grid: np.ndarray) -> float:
+    """Where ``loss`` is least: the best of ``grid`` (ascending), then :data:`WALL_GOLDEN`
+    golden sections of the bracket of its neighbours (one new score each)."""
+    best = int(np.argmin([loss(x) for x in grid]))
+    a, b = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
+    c, d = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
+    fc, fd = loss(c), loss(d)
+    for k in range(WALL_GOLDEN):
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - GOLDEN * (b - a)
+            if k + 1 < WALL_GOLDEN:
+                fc = loss(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + GOLDEN * (b - a)
+            if k + 1 < WALL_GOLDEN:
+                fd = loss(d)
+    return float(0.5 * (a + b))
 
 
 #: Batches under a sample budget are multiples of this many rays, between the configured
@@ -175,6 +205,9 @@ class Trainer:
         self.groups = (self.field.param_groups(cfg.learning_rate)
                        + self.surroundings.model_groups(cfg.learning_rate) + refined)
         self.refined = tuple(name for group in refined for name in group.keys)
+        if self.surroundings.bow is not None:
+            # Searched before the first step, not descended: reported with what is refined.
+            self.refined += (ContainerBow.NAME,)
         params = mi.traverse(self.scene)
         keys = self.integrator.traverse_keys(params)
         #: The ``mi.traverse`` key of each array fitted, by the integrator's name.
@@ -347,17 +380,26 @@ class Trainer:
     def fit_media(self) -> None:
         """Beyond the paper: before the field's first step, what the empty container alone shows
         measured from the photographs rendered with it empty (``RefineConfig.media_steps`` says
-        why): the walls' thickness (:meth:`search_walls`), then the absorption, fitted to
+        why): the walls' thickness (:meth:`search_walls`) or a block's faces' bulge
+        (:meth:`search_bow`), then the absorption, fitted to
         uniformly drawn pixels, first their median, then their mode; Adam of its own, its rate
         decaying to 0 (a cosine). A run resumed after its first step has done it."""
         refine = self.cfg.refine
         steps = refine.media_steps
         if self.iteration or not steps:
             return
-        if refine.wall and self.surroundings.backdrop is not None:
+        if self.surroundings.backdrop is not None:
             # Without a board behind it the empty glass shows the uniform light it is lit by,
             # whatever its walls: the field's refinement alone sees them (the specimen through them).
-            self.search_walls()
+            if refine.wall:
+                self.search_walls()
+            if self.surroundings.bow is not None:
+                self.search_bow()
+        elif self.surroundings.bow is not None:
+            raise ReneusError('model.render.bow: the scene has no board under the block, and the faces\' '
+                              'bulge is measured from the board seen through it; expected a scene with '
+                              "its board (python -m reneus_mi.scene's --board scene) or "
+                              '--set model.render.bow=false')
         if not refine.absorption:
             return
         key = self.keys['container.sigma_a']
@@ -396,31 +438,55 @@ class Trainer:
         key = self.keys[ContainerWalls.NAME]
         walls = self.surroundings.walls
         lo, hi = walls.bounds()
-        state = self.integrator.state
-        ray, target = self.pixels.uniform(0, self.cfg.refine.wall_rays, MEDIA)
         value = np.array(self.opt[key], np.float64)
 
         def loss(w: float, g: int) -> float:
             trial = value.copy()
             trial[g] = w
             mi.set_property(walls.thickness, mi.Float(trial))
-            with dr.suspend_grad():
-                return float(losses.color_l1(self.integrator.render_rays(self.scene, ray).color, target)[0])
-        try:
-            self.integrator.state = StepState(seed=step_seed(self.cfg.seed, 0, MEDIA), field=False)
+            return self._empty_loss(*pixels)
+        with self._container_empty() as pixels:
             for g, stated in enumerate(walls.stated):
-                grid = np.clip(stated * np.asarray(WALL_SEARCH), lo, hi)
-                scores = [loss(w, g) for w in grid]
-                best = int(np.argmin(scores))
-                a, b = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
-                for _ in range(WALL_GOLDEN):
-                    c, d = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
-                    a, b = (a, d) if loss(c, g) < loss(d, g) else (c, b)
-                value[g] = 0.5 * (a + b)
-        finally:
-            self.integrator.state = state
+                value[g] = golden_search(lambda w: loss(w, g), np.clip(stated * np.asarray(WALL_SEARCH), lo, hi))
         self.opt[key] = mi.Float(value)
         self.params.update(self.opt)
+
+    def search_bow(self) -> None:
+        """The bulge of each face of a solid block (:mod:`~reneus_mi.render.bow`) where the
+        photographs rendered with the block empty differ least from the photographs, as
+        :meth:`search_walls` finds the walls: face by face over :data:`BOW_SEARCH` times its
+        smaller half-side, then by golden sections about the best, :data:`BOW_PASSES` times
+        round (a ray through a side also leaves through the bottom)."""
+        bow = self.surroundings.bow
+        value = np.zeros(6)
+
+        def loss(x: float, k: int) -> float:
+            trial = value.copy()
+            trial[k] = x
+            mi.set_property(bow.bow, mi.Float(trial))
+            return self._empty_loss(*pixels)
+        with self._container_empty() as pixels:
+            for round in range(BOW_PASSES):
+                for k, scale in enumerate(bow.scales()):
+                    # Later rounds look a step of the first's grid either side of what it found.
+                    grid = BOW_SEARCH if round == 0 else value[k] / scale + np.array([-1.0, 0.0, 1.0]) * BOW_STEP
+                    value[k] = golden_search(lambda x: loss(x, k), scale * np.asarray(grid))
+        mi.set_property(bow.bow, mi.Float(value))
+
+    @contextlib.contextmanager
+    def _container_empty(self):
+        """Renders of the container without the field (the first step's seeds); yields the
+        rays and colours of ``wall_rays`` uniformly drawn pixels that :meth:`_empty_loss` scores."""
+        state = self.integrator.state
+        try:
+            self.integrator.state = StepState(seed=step_seed(self.cfg.seed, 0, MEDIA), field=False)
+            yield self.pixels.uniform(0, self.cfg.refine.wall_rays, MEDIA)
+        finally:
+            self.integrator.state = state
+
+    def _empty_loss(self, ray: mi.Ray3f, target: mi.Color3f) -> float:
+        with dr.suspend_grad():
+            return float(losses.color_l1(self.integrator.render_rays(self.scene, ray).color, target)[0])
 
     def _check(self, value: float, it: int) -> None:
         if not np.isfinite(value):
@@ -558,7 +624,7 @@ class Trainer:
         if self.refined:
             result['refined'] = self.refined_values()
             result['refined_spread'] = self.refined_spread()
-        if cfg.refine.pose or cfg.refine.wall:
+        if cfg.refine.pose or cfg.refine.wall or self.surroundings.bow is not None:
             result['container'] = self.write_container(self.folder.container)
         try:
             mesh = self.write_mesh(mesh_path)

@@ -221,7 +221,7 @@ def test_dataset_reads_back_in_millimetres(made, shot):
     # The PLY holds float32: 1e-5 mm at 150 mm from the origin.
     np.testing.assert_allclose(block.extents, shot['meta']['container']['size_mm'], atol=1e-4)
     np.testing.assert_allclose(block.bounds[:, 2], [-25.0, 0.0], atol=1e-4)
-    # A sharp block: no rounding measured (scene.edge_settings: the margin of one too small to see).
+    # A sharp block: no rounding measured (scene.block_settings: the margin of one too small to see).
     assert ds.edge == 0.0
     assert ds.masks.any(axis=(1, 2)).all()
     # Exposures normalised: the white print is equally bright in every image.
@@ -264,6 +264,39 @@ def test_the_scene_leaves_out_the_rays_by_a_rounding_too_small_to_see(made, tmp_
     margin = load_scene(xml).integrator().model.render.edge_margin
     expected = scene.EDGE_MARGIN_RADII * scene.UNSEEN_EDGE_PIXELS * ds.pixel_footprint()
     assert margin == pytest.approx(expected, rel=1e-2)
+
+
+def test_the_scene_models_a_blocks_faces_as_bulging_on_its_board(made, tmp_path):
+    """A capture's solid block may bulge, and the board seen through it measures how much: the
+    scene says so where the board is in it, unless --set says otherwise."""
+    from reneus_mi import scene
+    from reneus_mi.render.loading import load_scene
+    written = {}
+    for name, given in (('board', []), ('ambient', ['--board', 'ambient']),
+                        ('off', ['--set', 'model.render.bow=false'])):
+        xml = str(tmp_path / f'{name}.xml')
+        assert scene.main([str(made['out']), '-o', xml, *given]) == 0
+        written[name] = load_scene(xml).integrator().model.render.bow
+    assert written == {'board': True, 'ambient': False, 'off': False}
+
+
+def test_a_bulge_without_a_board_to_measure_it_is_refused(made, tmp_path):
+    from reneus_mi import runs, scene
+    from reneus_mi.utils.errors import ReneusError
+    xml = str(tmp_path / 'scene.xml')
+    assert scene.main([str(made['out']), '-o', xml, '--board', 'ambient', '--set', 'model.render.bow=true']) == 0
+    trainer = runs.prepare(str(tmp_path / 'run'), xml, str(made['out'])).trainer()
+    with pytest.raises(ReneusError, match=r"^model.render.bow: the scene has no board under the block, .*"
+                                          r"--set model.render.bow=false$"):
+        trainer.fit_media()
+
+
+def test_a_flat_block_is_found_flat(made, tmp_path):
+    """The search for bowed faces (test_bowed_block.py) finds the flat block flat."""
+    from test_bowed_block import TOLERANCE_MM, found_bows
+    bows, _ = found_bows(made['out'], tmp_path)
+    print(bows)
+    assert np.abs(bows).max() < TOLERANCE_MM, bows
 
 
 #: The README's path from the capture's dataset to a mesh, trained to the end of its budget:
