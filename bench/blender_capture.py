@@ -70,7 +70,6 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import blender_set as bs  # noqa: E402  (exits with a hint without bpy)
-from bow_profile import bulge  # noqa: E402
 import bmesh  # noqa: E402
 import bpy  # noqa: E402
 import cv2  # noqa: E402
@@ -506,10 +505,21 @@ def round_edges(ob, radius: float) -> None:
     bpy.ops.object.modifier_apply(modifier='round')
 
 
+def _bulge_module():
+    """The project's bulge (``reneus_mi/geometry/bulge.py``: NumPy only), read from its file:
+    importing the package would need Mitsuba, which Blender's Python lacks."""
+    import importlib.util
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'reneus_mi', 'geometry', 'bulge.py')
+    spec = importlib.util.spec_from_file_location('bulge', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def bow_faces(ob, half, yaw: float, bow: float) -> None:
     """A block polished convex: its four sides and its top bulge out by ``bow`` mm at their
-    centres, 0 at their edges (a product of parabolas across the face); the bottom, which stands
-    on the board, stays flat. ``ob`` is the block centred on its origin, turned by ``yaw``
+    centres, 0 at their edges (``reneus_mi/geometry/bulge.py``); the bottom, which stands on the
+    board, stays flat. ``ob`` is the block centred on its origin, turned by ``yaw``
     degrees about z."""
     bm = bmesh.new()
     bm.from_mesh(ob.data)
@@ -517,7 +527,12 @@ def bow_faces(ob, half, yaw: float, bow: float) -> None:
     c, s = math.cos(math.radians(yaw)), math.sin(math.radians(yaw))
     p = np.array([v.co[:] for v in bm.verts])
     q = np.stack([c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1], p[:, 2]], axis=1) / half
-    out = bulge(q, bow, top=1.0)                        # Blender's z is up
+    # Each point on the face its largest coordinate puts it on (on an edge the bulge is 0).
+    axis = np.argmax(np.abs(q), axis=1)
+    n = np.zeros_like(q)
+    n[np.arange(len(q)), axis] = np.sign(q[np.arange(len(q)), axis])
+    # The faces -x +x -y +y -z +z; Blender's z is up: the bottom is the -z face.
+    out = _bulge_module().displacement(q.T, n.T, [bow] * 4 + [0.0, bow], np.ones(3))
     for v, (dx, dy, dz) in zip(bm.verts, out):
         v.co.x += c * dx - s * dy
         v.co.y += s * dx + c * dy

@@ -17,15 +17,11 @@ import json
 import os
 import shutil
 
-import sys
-
 import numpy as np
 import trimesh
 
 from reneus_mi.capture.placement import local_mesh, pose_matrix
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bow_profile import bulge  # noqa: E402
+from reneus_mi.geometry.bulge import displacement
 
 #: Halvings of the box's triangles: 2^5 = 32 facets along each side of a face.
 SUBDIVISIONS = 5
@@ -39,7 +35,9 @@ def bowed_block(size, bow: float) -> trimesh.Trimesh:
         mesh = trimesh.Trimesh(*trimesh.remesh.subdivide(mesh.vertices, mesh.faces))
     half = 0.5 * np.asarray(size, np.float64)
     v = np.asarray(mesh.vertices, np.float64)
-    out = bulge((v - [0.0, 0.0, -half[2]]) / half, bow, top=-1.0)     # up is -z
+    q = v - [0.0, 0.0, -half[2]]
+    # The faces -x +x -y +y -z +z; up is -z: the bottom is the +z face.
+    out = displacement(q.T, np.asarray(mesh.vertex_normals).T, [bow] * 5 + [0.0], half)
     return trimesh.Trimesh(v + out, mesh.faces, process=False)
 
 

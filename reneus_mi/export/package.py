@@ -277,7 +277,8 @@ def _container(data: str | None, result: dict) -> dict | None:
     liquid = given.get('liquid_ior') or (inner if isinstance(inner, (int, float)) and inner > 1.0 else None)
     return {'shape': given.get('shape'), 'size_mm': given.get('size_mm'), 'wall_mm': given.get('wall_mm'),
             'wall_refined': refined.get('container.wall'), 'edge_mm': given.get('edge_mm'),
-            'edge_measured': given.get('edge_measured'), 'pose': given.get('pose'), 'ior_given': meta.get('IOR'), 'ior_refined': refined.get('container.eta'),
+            'edge_measured': given.get('edge_measured'), 'bow_measured': refined.get('container.bow'),
+            'pose': given.get('pose'), 'ior_given': meta.get('IOR'), 'ior_refined': refined.get('container.eta'),
             'liquid_ior_given': liquid, 'liquid_ior_refined': refined.get('container.inner_ior'),
             'absorption_given': meta.get('absorption'), 'absorption_refined': refined.get('container.sigma_a'),
             'refined_spread': result.get('refined_spread')}

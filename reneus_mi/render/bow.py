@@ -87,6 +87,11 @@ class ContainerBow:
     def params(self) -> dict:
         return {self.NAME: self.bow}
 
+    def pieces(self, per_face: np.ndarray) -> np.ndarray:
+        """A value per triangle of the block as loaded, for each of the pieces it was cut into
+        (they follow one another, each triangle's together)."""
+        return np.repeat(per_face, 4 ** SUBDIVISIONS, axis=0)
+
     def scales(self) -> np.ndarray:
         """Per face, the smaller of its half-sides: how far a bulge of a given curvature goes."""
         h = self.half

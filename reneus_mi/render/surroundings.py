@@ -65,8 +65,16 @@ class Surroundings:
             self._outer = mi.UInt32(interfaces.outer)
             self._group = list(zip(shapes, interfaces.group_of_shape()))
         self.shapes = shapes
-        #: The bulge of a solid block's faces (None: flat as loaded); it cuts the block finer
-        #: first, so the tables below are of the block it bends.
+        meshes = [shape for shape in shapes if isinstance(shape, mi.Mesh)]
+        #: The container's edges (``container_edges``) where rays are flagged: the segments'
+        #: ends a and b (None: none), and the meshes whose faces on a rounding are flagged whole.
+        self.edge_segments = None
+        self.edge_margin = edge_margin
+        edges = [(shape, *container_edges(shape, crease_angle, edge_margin)) for shape in meshes] \
+            if edge_margin > 0.0 else []
+        #: The bulge of a solid block's faces (None: flat as loaded). It cuts the block finer, so
+        #: the edges are found before (the finer facets of a rounding would each be one) and its
+        #: faces' flags handed to their pieces, and the shading normals are its own.
         self.bow = None
         if bow:
             if interfaces is None or interfaces.count > 1 or len(shapes) > 1:
@@ -74,22 +82,17 @@ class Surroundings:
                                   '(nested interfaces or several shapes); expected a block whose faces '
                                   'may bulge (docs/containers.md)')
             self.bow = ContainerBow(shapes[0], crease_angle)
+            edges = [(shape, segments, self.bow.pieces(faces)) for shape, segments, faces in edges]
+        if sum(len(segments) for _, segments, _ in edges):
+            ends = np.concatenate([segments for _, segments, _ in edges]).astype(np.float32)
+            self.edge_segments = tuple(mi.Point3f(*(mi.Float(ends[:, end, i]) for i in range(3))) for end in (0, 1))
+        self.rounded = [(shape, mi.Bool(faces)) for shape, _, faces in edges if faces.any()]
         #: The container alone, and the backdrop shapes (None without): see the module docstring.
         self.container = scene_of(shapes)
         self.backdrop = scene_of(list(backdrop)) if backdrop else None
         #: The shading normals of each mesh's triangle corners (the container's optics).
         self.normals = {shape: self.bow.table if self.bow is not None else shading_normals(shape, crease_angle)
-                        for shape in shapes if isinstance(shape, mi.Mesh)}
-        #: The container's edges (``container_edges``) where rays are flagged: the segments'
-        #: ends a and b (None: none), and the meshes whose faces on a rounding are flagged whole.
-        self.edge_segments = None
-        self.edge_margin = edge_margin
-        edges = [(shape, *container_edges(shape, crease_angle, edge_margin)) for shape in self.normals] \
-            if edge_margin > 0.0 else []
-        if sum(len(segments) for _, segments, _ in edges):
-            ends = np.concatenate([segments for _, segments, _ in edges]).astype(np.float32)
-            self.edge_segments = tuple(mi.Point3f(*(mi.Float(ends[:, end, i]) for i in range(3))) for end in (0, 1))
-        self.rounded = [(shape, mi.Bool(faces)) for shape, _, faces in edges if faces.any()]
+                        for shape in meshes}
         self.emitter = emitter
         self.light = None if light == 'emitter' else Light(light, emitter)
         self.pose = ContainerPose(pivot) if pose else None

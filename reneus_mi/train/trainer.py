@@ -380,28 +380,33 @@ class Trainer:
     def fit_media(self) -> None:
         """Beyond the paper: before the field's first step, what the empty container alone shows
         measured from the photographs rendered with it empty (``RefineConfig.media_steps`` says
-        why): the walls' thickness (:meth:`search_walls`) or a block's faces' bulge
-        (:meth:`search_bow`), then the absorption, fitted to
-        uniformly drawn pixels, first their median, then their mode; Adam of its own, its rate
-        decaying to 0 (a cosine). A run resumed after its first step has done it."""
-        refine = self.cfg.refine
-        steps = refine.media_steps
-        if self.iteration or not steps:
+        why): the walls' thickness (:meth:`search_walls`), the absorption
+        (:meth:`fit_absorption`), then a block's faces' bulge (:meth:`search_bow`: a tint not
+        yet fitted offsets every pixel, and an L1 loss then no longer sees where the board's
+        pattern lies). A run resumed after its first step has done it."""
+        refine, surroundings = self.cfg.refine, self.surroundings
+        if self.iteration or not refine.media_steps:
             return
-        if self.surroundings.backdrop is not None:
-            # Without a board behind it the empty glass shows the uniform light it is lit by,
-            # whatever its walls: the field's refinement alone sees them (the specimen through them).
-            if refine.wall:
-                self.search_walls()
-            if self.surroundings.bow is not None:
-                self.search_bow()
-        elif self.surroundings.bow is not None:
+        if surroundings.bow is not None and surroundings.backdrop is None:
             raise ReneusError('model.render.bow: the scene has no board under the block, and the faces\' '
                               'bulge is measured from the board seen through it; expected a scene with '
                               "its board (python -m reneus_mi.scene's --board scene) or "
                               '--set model.render.bow=false')
-        if not refine.absorption:
-            return
+        # Without a board behind it the empty glass shows the uniform light it is lit by,
+        # whatever its walls: the field's refinement alone sees them (the specimen through them).
+        if refine.wall and surroundings.backdrop is not None:
+            self.search_walls()
+        if refine.absorption:
+            self.fit_absorption()
+        if surroundings.bow is not None:
+            self.search_bow()
+
+    def fit_absorption(self) -> None:
+        """The absorption fitted to uniformly drawn pixels of the empty container, first their
+        median, then their mode (``RefineConfig.media_steps``); Adam of its own, its rate
+        decaying to 0 (a cosine)."""
+        refine = self.cfg.refine
+        steps = refine.media_steps
         key = self.keys['container.sigma_a']
         opt = mi.ad.Adam(lr=refine.media_learning_rate)
         opt[key] = self.opt[key]
@@ -439,15 +444,9 @@ class Trainer:
         walls = self.surroundings.walls
         lo, hi = walls.bounds()
         value = np.array(self.opt[key], np.float64)
-
-        def loss(w: float, g: int) -> float:
-            trial = value.copy()
-            trial[g] = w
-            mi.set_property(walls.thickness, mi.Float(trial))
-            return self._empty_loss(*pixels)
-        with self._container_empty() as pixels:
+        with self._scoring(walls.thickness, value) as score:
             for g, stated in enumerate(walls.stated):
-                value[g] = golden_search(lambda w: loss(w, g), np.clip(stated * np.asarray(WALL_SEARCH), lo, hi))
+                value[g] = golden_search(score(g), np.clip(stated * np.asarray(WALL_SEARCH), lo, hi))
         self.opt[key] = mi.Float(value)
         self.params.update(self.opt)
 
@@ -459,34 +458,35 @@ class Trainer:
         round (a ray through a side also leaves through the bottom)."""
         bow = self.surroundings.bow
         value = np.zeros(6)
-
-        def loss(x: float, k: int) -> float:
-            trial = value.copy()
-            trial[k] = x
-            mi.set_property(bow.bow, mi.Float(trial))
-            return self._empty_loss(*pixels)
-        with self._container_empty() as pixels:
+        with self._scoring(bow.bow, value) as score:
             for round in range(BOW_PASSES):
                 for k, scale in enumerate(bow.scales()):
                     # Later rounds look a step of the first's grid either side of what it found.
                     grid = BOW_SEARCH if round == 0 else value[k] / scale + np.array([-1.0, 0.0, 1.0]) * BOW_STEP
-                    value[k] = golden_search(lambda x: loss(x, k), scale * np.asarray(grid))
+                    value[k] = golden_search(score(k), scale * np.asarray(grid))
         mi.set_property(bow.bow, mi.Float(value))
 
     @contextlib.contextmanager
-    def _container_empty(self):
-        """Renders of the container without the field (the first step's seeds); yields the
-        rays and colours of ``wall_rays`` uniformly drawn pixels that :meth:`_empty_loss` scores."""
+    def _scoring(self, array: mi.Float, value: np.ndarray):
+        """Renders of the container without the field (the first step's seeds) at ``wall_rays``
+        uniformly drawn pixels; yields ``score``: ``score(k)(x)`` sets ``array`` to ``value``
+        with its ``k``-th entry ``x`` and gives the pixels' mean absolute colour difference."""
+        ray, target = self.pixels.uniform(0, self.cfg.refine.wall_rays, MEDIA)
+
+        def score(k: int):
+            def loss(x: float) -> float:
+                trial = value.copy()
+                trial[k] = x
+                mi.set_property(array, mi.Float(trial))
+                with dr.suspend_grad():
+                    return float(losses.color_l1(self.integrator.render_rays(self.scene, ray).color, target)[0])
+            return loss
         state = self.integrator.state
         try:
             self.integrator.state = StepState(seed=step_seed(self.cfg.seed, 0, MEDIA), field=False)
-            yield self.pixels.uniform(0, self.cfg.refine.wall_rays, MEDIA)
+            yield score
         finally:
             self.integrator.state = state
-
-    def _empty_loss(self, ray: mi.Ray3f, target: mi.Color3f) -> float:
-        with dr.suspend_grad():
-            return float(losses.color_l1(self.integrator.render_rays(self.scene, ray).color, target)[0])
 
     def _check(self, value: float, it: int) -> None:
         if not np.isfinite(value):

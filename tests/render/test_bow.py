@@ -1,12 +1,14 @@
 """A solid block's faces bulging (``model.render.bow``, :mod:`reneus_mi.render.bow`): the bowed
 block renders as Mitsuba's path tracer sees a finely cut mesh of it, each face's bulge moves
 that face alone, no bulge is the flat block, and what is not one solid block is refused."""
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
 import trimesh
 
-from reference import BLOCK_HALF, BLOCK_ROTATION, path_reference, path_scene, reneus_pixels, reneus_scene
+from reference import (BLOCK_HALF, BLOCK_ROTATION, path_reference, path_scene, pixel_rays, reneus_pixels,
+                       reneus_scene)
 from reneus_mi.render.interfaces import display_case
 from reneus_mi.utils.errors import ReneusError
 
@@ -124,3 +126,19 @@ def test_what_is_not_one_solid_block_is_refused(shapes, expected, tmp_path):
     scene = reneus_scene(RES, shapes=shapes(path), bow=True)
     with pytest.raises(ReneusError, match=expected):
         scene.integrator().bind(scene)
+
+
+def test_the_edges_flagged_are_the_blocks_as_loaded(tmp_path):
+    """A rounded block's rays near its edges (``edge_margin``) are flagged alike with the bulge
+    modelled: its finer cut is not taken for more rounding (each piece of a rounding's facet,
+    narrower, would turn faster), nor its edges for more segments."""
+    from reneus_mi.capture.placement import local_mesh
+    mesh = local_mesh('box', 2 * np.asarray(BLOCK_HALF), edge=0.15)
+    path = _placed(trimesh.Trimesh(mesh.vertices - mesh.bounds.mean(axis=0), mesh.faces), tmp_path / 'rounded.ply')
+    flags, segments = [], []
+    for bow in (False, True):
+        scene = reneus_scene(RES, mesh=path, edge_margin=0.2, bow=bow)
+        flags.append(np.array(scene.integrator().render_rays(scene, pixel_rays(scene)).near_edge))
+        segments.append(dr.width(scene.integrator().bind(scene).edge_segments[0].x))
+    assert segments[1] == segments[0]
+    assert flags[0].mean() > 0.05 and np.mean(flags[0] != flags[1]) < 0.01, (flags[0].mean(), np.mean(flags[0] != flags[1]))
