@@ -205,9 +205,8 @@ class Trainer:
         self.groups = (self.field.param_groups(cfg.learning_rate)
                        + self.surroundings.model_groups(cfg.learning_rate) + refined)
         self.refined = tuple(name for group in refined for name in group.keys)
-        if self.surroundings.bow is not None:
-            # Searched before the first step, not descended: reported with what is refined.
-            self.refined += (ContainerBow.NAME,)
+        #: What is measured before the first step and not descended after (reported with what is).
+        self.measured = (ContainerBow.NAME,) if self.surroundings.bow is not None else ()
         params = mi.traverse(self.scene)
         keys = self.integrator.traverse_keys(params)
         #: The ``mi.traverse`` key of each array fitted, by the integrator's name.
@@ -235,8 +234,10 @@ class Trainer:
         return {key: name for name, key in self.keys.items()}
 
     def refined_values(self) -> dict:
-        """The refined IOR, pose and light as they stand (a host read: for logs and results)."""
-        return self.surroundings.values(self.refined) if self.refined else {}
+        """The refined IOR, pose and light as they stand, and what was measured before the first
+        step (a host read: for logs and results)."""
+        names = self.refined + self.measured
+        return self.surroundings.values(names) if names else {}
 
     def refined_spread(self) -> dict:
         """Per refined value, its standard deviation over the log's rows of the run's last
@@ -621,7 +622,7 @@ class Trainer:
         result.update({key: value for key, value in (('units', self.ds.units), ('frame', self.ds.frame)) if value})
         if self.ds.gt_mesh:
             result['ground_truth'] = self.ds.gt_mesh
-        if self.refined:
+        if self.refined or self.measured:
             result['refined'] = self.refined_values()
             result['refined_spread'] = self.refined_spread()
         if cfg.refine.pose or cfg.refine.wall or self.surroundings.bow is not None:
