@@ -13,14 +13,16 @@ import argparse
 import json
 import sys
 
+from reneus_mi.fields import load_field
 from reneus_mi.geometry.chamfer import chamfer
-from reneus_mi.geometry.limbs import limb_reach
+from reneus_mi.geometry.limbs import field_reach, limb_reach
 from reneus_mi.geometry.container import load_container
 from reneus_mi.geometry.mesh import load_mesh
 from reneus_mi.geometry.surface import POSTPROCESS_MODES, components, postprocess
+from reneus_mi.train import checkpoint
 from reneus_mi.utils import guards
 from reneus_mi.utils.errors import ReneusError, exit_on_error
-from reneus_mi.utils.io import atomic_write_text, load_json
+from reneus_mi.utils.io import atomic_write_text, check_npz_file, load_json
 
 
 def _table(result: dict) -> str:
@@ -36,8 +38,9 @@ def _table(result: dict) -> str:
         ('extents (GT axes)', '  '.join(f'{p:.4g}' for p in result['extents']['pred'])
          + '  vs GT  ' + '  '.join(f'{g:.4g}' for g in result['extents']['gt'])),
         ('extent error %', '  '.join(f'{e:+.1f}' for e in result['extents']['error_pct'])),
-        *[(f"{limb['name']}", f"reach {limb['reach']:.4g} of {limb['length']:.4g} ({limb['error_pct']:+.1f} %), "
-                               f"longest gap {limb['longest_gap']:.3g}") for limb in result.get('limbs', [])],
+        *[(f"{limb['name']}{where}", f"reach {limb['reach']:.4g} of {limb['length']:.4g} ({limb['error_pct']:+.1f} %), "
+                                      f"longest gap {limb['longest_gap']:.3g}")
+          for key, where in (('limbs', ''), ('field_limbs', ' (field)')) for limb in result.get(key, [])],
         ('points (pred kept / sampled)', f"{result['n_pred']} / {result['n_points']}"),
         ('connected components', str(result['components'])),
         ('post-processing', result['postprocess']),
@@ -71,6 +74,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="a JSON file whose 'limbs' are the specimen's legs and antennae (name, joints_mm, "
                              'radii_mm; bench/blender_capture.py writes them): how far PRED reaches along each, '
                              'within THRESHOLD of its radius')
+    parser.add_argument('--field', metavar='CHECKPOINT',
+                        help="with --limbs: also how far the run's field itself reaches along each limb (its SDF "
+                             'at the axis within the radius and THRESHOLD), before marching cubes and the clean-up: '
+                             'a limb the field reaches and PRED misses was lost in meshing')
     parser.add_argument('--points', type=int, default=None,
                         help='number of surface samples per mesh (default: the paper\'s N)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the surface sampling (default: %(default)s)')
@@ -84,6 +91,10 @@ def main(argv: list[str] | None = None) -> int:
                                      overwrite=args.overwrite, extensions=('.json',))
         pred, gt = load_mesh(args.pred, 'predicted mesh'), load_mesh(args.gt, 'ground-truth mesh')
         container = load_container(args.container) if args.container else None
+        if args.field and not args.limbs:
+            raise ReneusError('--field needs --limbs: the limbs along which the field is probed')
+        if args.field:
+            check_npz_file(args.field, 'checkpoint')
         if args.postprocess == 'crop' and container is None:
             raise ReneusError('--postprocess crop needs --container')
         pred = postprocess(pred, args.postprocess, container)
@@ -97,6 +108,9 @@ def main(argv: list[str] | None = None) -> int:
             if not limbs:
                 raise ReneusError(f"{args.limbs}: no 'limbs'; expected a list of legs and antennae")
             result['limbs'] = limb_reach(pred, limbs, tolerance=args.threshold)
+            if args.field:
+                result['field_limbs'] = field_reach(load_field(args.field), checkpoint.load_frame(args.field)[0],
+                                                    limbs, tolerance=args.threshold)
         result['postprocess'] = args.postprocess
         result['components'] = components(pred)
         if args.json:

@@ -11,6 +11,8 @@ before the reach says whether the limb is attached or a piece lies beyond a gap.
 """
 from __future__ import annotations
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 from scipy.spatial import cKDTree
 import trimesh
@@ -38,10 +40,35 @@ def limb_reach(mesh: trimesh.Trimesh, limbs: list[dict], tolerance: float, step:
     ``mesh`` along it, ``error_pct`` and ``longest_gap`` (same units as the mesh)."""
     if len(mesh.faces) == 0:
         raise ReneusError('the mesh has no surface to measure limbs on')
-    step = step or 0.5 * tolerance
     surface, _ = trimesh.sample.sample_surface(mesh, SURFACE_POINTS, seed=seed)
     tree = cKDTree(surface)
     out = []
+    for name, points, s, r in _axes(limbs, step or 0.5 * tolerance):
+        covered = tree.query(points, workers=-1)[0] <= r + tolerance
+        try:
+            covered |= inside(points, mesh)
+        except ReneusError:
+            pass        # a mesh that is not closed holds nothing inside: its surface alone counts
+        out.append(_reach(name, s, covered))
+    return out
+
+
+def field_reach(field, frame, limbs: list[dict], tolerance: float, step: float | None = None) -> list[dict]:
+    """:func:`limb_reach` of a trained field itself, before marching cubes and the clean-up: an
+    axis point is covered where the field's SDF there, in the world's units (``frame``), is at
+    most the limb's radius plus ``tolerance`` (inside counts). A limb the mesh misses and the
+    field reaches was lost in meshing; one the field misses too was never grown."""
+    out = []
+    for name, points, s, r in _axes(limbs, step or 0.5 * tolerance):
+        x = frame.to_field(mi.Point3f(*(mi.Float(points[:, k].astype(np.float32)) for k in range(3))))
+        with dr.suspend_grad():
+            sdf = np.asarray(field.sdf(x), np.float64) * frame.scale
+        out.append(_reach(name, s, sdf <= r + tolerance))
+    return out
+
+
+def _axes(limbs: list[dict], step: float):
+    """Per limb: its name and :func:`axis_samples` (checked: a clear error for a malformed limb)."""
     for limb in limbs:
         try:
             joints = np.asarray(limb['joints_mm'], float).reshape(-1, 3)
@@ -52,17 +79,15 @@ def limb_reach(mesh: trimesh.Trimesh, limbs: list[dict], tolerance: float, step:
         if len(joints) < 2 or len(radii) != len(joints):
             raise ReneusError(f'limb {name!r}: {len(joints)} joints and {len(radii)} radii; expected at least '
                               'two joints, a radius each')
-        points, s, r = axis_samples(joints, radii, step)
-        covered = tree.query(points, workers=-1)[0] <= r + tolerance
-        try:
-            covered |= inside(points, mesh)
-        except ReneusError:
-            pass        # a mesh that is not closed holds nothing inside: its surface alone counts
-        reached = np.flatnonzero(covered)
-        reach = float(s[reached[-1]]) if len(reached) else 0.0
-        # Uncovered axis between covered samples, and before the first one.
-        bounds = np.concatenate([[-(s[1] - s[0])], s[reached]])
-        gap = float(np.diff(bounds).max() - (s[1] - s[0])) if len(reached) else float(s[-1])
-        out.append({'name': name, 'length': float(s[-1]), 'reach': reach,
-                    'error_pct': 100.0 * (reach - s[-1]) / s[-1], 'longest_gap': gap})
-    return out
+        yield (name, *axis_samples(joints, radii, step))
+
+
+def _reach(name: str, s: np.ndarray, covered: np.ndarray) -> dict:
+    """A limb's reach from which of its axis samples (arclength ``s``) are covered."""
+    reached = np.flatnonzero(covered)
+    reach = float(s[reached[-1]]) if len(reached) else 0.0
+    # Uncovered axis between covered samples, and before the first one.
+    bounds = np.concatenate([[-(s[1] - s[0])], s[reached]])
+    gap = float(np.diff(bounds).max() - (s[1] - s[0])) if len(reached) else float(s[-1])
+    return {'name': name, 'length': float(s[-1]), 'reach': reach,
+            'error_pct': 100.0 * (reach - s[-1]) / s[-1], 'longest_gap': gap}

@@ -112,7 +112,6 @@ class PixelSampler:
         self.k_inv = mi.Float(k_inv[:, :2, :].reshape(-1).astype(np.float32))
         self.rotation = mi.Float(dataset.c2w[:, :3, :3].reshape(-1).astype(np.float32))
         self.origin = mi.Float(dataset.c2w[:, :3, 3].reshape(-1).astype(np.float32))
-        # Unseen pixels count as badly fitted (errors are mean absolute colour differences).
         # Never drawn: -1, i.e. badly fitted (errors are mean absolute colour differences; a
         # negative value is an estimate, its size the weight).
         self.error = dr.full(mi.Float, -1.0, self.n_pixels) if self.config.error_share else None
