@@ -114,32 +114,42 @@ def mlp(dims=MLP):
     return nn.pack(nn.Sequential(*layers[:-1]).alloc(mi.TensorXf, dims[0]), layout='training')
 
 
-def mlp_output(net, x: list, backward: bool):
-    """The MLP's outputs summed over ``x`` (one array per input), or with ``backward`` the weights'
-    gradient of that sum: what a kernel evaluates."""
+def mlp_output(net, x: list, backward: str | None):
+    """The MLP's outputs summed over ``x`` (one array per input), or that sum's gradient with
+    respect to the ``'weights'`` or the ``'inputs'`` (the weights held): what a kernel evaluates."""
     import drjit as dr
     import drjit.nn as nn
-    if backward:
+    if backward == 'weights':
         dr.enable_grad(net['weights'])
+    x = [dr.detach(v) for v in x]
+    if backward == 'inputs':
+        dr.enable_grad(x)
     y = list(net(nn.CoopVec(*x)))
     out = sum(y[1:], y[0])
     if not backward:
         return out
     dr.backward(out)
-    return dr.grad(net['weights'])
+    if backward == 'inputs':
+        return dr.grad(x)
+    grad = dr.grad(net['weights'])
+    dr.disable_grad(net['weights'])
+    return grad
 
 
 def mlp_rates(dims=MLP, n=1 << 16) -> dict:
     """FMAs a second of one MLP of the field's shape alone: forward, and forward with backward
-    (counted as three times the forward's FMAs)."""
+    (counted as three times the forward's FMAs) to the weights and to the inputs alone (counted
+    as twice: the weights' outer products are what the first adds)."""
     import drjit as dr
     import mitsuba as mi
     net = mlp(dims)
     x = [dr.arange(mi.Float, n) * (1e-5 * (i + 1)) for i in range(dims[0])]
     fmas = n * sum(a * b for a, b in zip(dims[:-1], dims[1:]))
-    forward = best_time(lambda: mlp_output(net, x, backward=False), repeats=4)
-    training = best_time(lambda: mlp_output(net, x, backward=True), repeats=4)
-    return {'mlp_forward_fma_per_s': fmas / forward, 'mlp_training_fma_per_s': 3 * fmas / training}
+    forward = best_time(lambda: mlp_output(net, x, backward=None), repeats=4)
+    training = best_time(lambda: mlp_output(net, x, backward='weights'), repeats=4)
+    inputs = best_time(lambda: mlp_output(net, x, backward='inputs'), repeats=4)
+    return {'mlp_forward_fma_per_s': fmas / forward, 'mlp_training_fma_per_s': 3 * fmas / training,
+            'mlp_inputs_fma_per_s': 2 * fmas / inputs}
 
 
 def ir_counts(ir: str) -> dict:
@@ -299,7 +309,9 @@ def write_doc(results: list[dict], peak: dict, cold: dict, args, command: str, d
              f'| float atomic scatter-add, 1 MB table | {peak["atomic_add_per_s"] / 1e6:.0f} M/s |',
              f'| an MLP 17-32-32-9 (`drjit.nn`), forward | {peak["mlp_forward_fma_per_s"] / 1e9:.1f} G FMA/s |',
              f'| the same, forward and backward (3x the forward\'s FMAs) | '
-             f'{peak["mlp_training_fma_per_s"] / 1e9:.1f} G FMA/s |', '']
+             f'{peak["mlp_training_fma_per_s"] / 1e9:.1f} G FMA/s |',
+             f'| the same, forward and backward to the inputs only (2x the forward\'s FMAs) | '
+             f'{peak["mlp_inputs_fma_per_s"] / 1e9:.1f} G FMA/s |', '']
     for r in results:
         name = r['label']
         if 'error' in r:

@@ -19,7 +19,7 @@ DIMS = bench_profile.MLP
 WEIGHTS = sum(a * b for a, b in zip(DIMS[:-1], DIMS[1:]))
 
 
-def _kernels(backward: bool) -> list[dict]:
+def _kernels(backward: str | None) -> list[dict]:
     net = bench_profile.mlp(DIMS)
     x = [dr.arange(mi.Float, 64) * (i + 1) for i in range(DIMS[0])]
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
@@ -31,9 +31,13 @@ def _kernels(backward: bool) -> list[dict]:
 
 @pytest.mark.skipif(not mi.variant().startswith('llvm'), reason="the CPU backend's IR")
 def test_an_mlps_fmas_and_weight_gradients_are_counted():
-    (forward,) = _kernels(backward=False)
+    (forward,) = _kernels(backward=None)
     # Every weight once in the matrix-vector products' loops; a handful of straight-line FMAs.
     assert WEIGHTS <= forward['fma'] < WEIGHTS + 16 and forward['reductions'] == 0
-    counts = _kernels(backward=True)
+    counts = _kernels(backward='weights')
     # Every weight's gradient is one reduction of a packet's lanes.
     assert sum(c['reductions'] for c in counts) == WEIGHTS
+    # Backward to the inputs alone: the forward and most products again, transposed; no reductions.
+    counts = _kernels(backward='inputs')
+    assert sum(c['reductions'] for c in counts) == 0
+    assert sum(c["fma"] for c in counts) > 1.5 * WEIGHTS
