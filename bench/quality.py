@@ -98,7 +98,7 @@ PSNR_WINDOW, PSNR_DROP = 100, 1.0
 PLOT = (4.8, 2.4)
 #: What a row keeps in DOC/quality.json (the run folder is this machine's, not kept).
 RECORDED = ('scene', 'variant', 'preset', 'settings', 'minutes', 'chamfer', 'chamfer_mm', 'fscore', 'threshold',
-            'at', 'extent_error', 'limbs', 'footprint_mm',
+            'at', 'extent_error', 'limbs', 'field_limbs', 'footprint_mm',
             'postprocess', 'components', 'steps', 'train_s', 'psnr', 'psnr_best', 'psnr_best_step', 'psnr_end',
             'psnr_below_1db', 'photos', 'wall_s', 'others', 'status', 'reused', 'remeshed', 'picture',
             'psnr_plot', 'date', 'commit', 'machine')
@@ -275,8 +275,10 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
 
 def _evaluate(run: str, gt: str, evaluation: str, postprocess: str | None,
               evaluate_args: tuple[str, ...] = ()) -> list[str]:
+    """evaluate's command; with limbs, the run's field is walked along them too (``--field``)."""
+    field = ('--field', os.path.join(run, 'checkpoint.npz')) if '--limbs' in evaluate_args else ()
     return [sys.executable, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation,
-            '--overwrite', *evaluate_args, *(['--postprocess', postprocess] if postprocess else [])]
+            '--overwrite', *evaluate_args, *field, *(['--postprocess', postprocess] if postprocess else [])]
 
 
 def _read(run: str, evaluation: str | None) -> dict:
@@ -294,8 +296,8 @@ def _read(run: str, evaluation: str | None) -> dict:
         out.update(chamfer=e['chamfer'], fscore=e.get('fscore'), threshold=e.get('threshold'),
                    postprocess=e.get('postprocess'), status='ok', at=e.get('at'),
                    extent_error=(e.get('extents') or {}).get('error_pct'),
-                   limbs=[{k: limb[k] for k in ('name', 'length', 'reach', 'error_pct', 'longest_gap')}
-                          for limb in e.get('limbs', [])] or None)
+                   **{key: [{k: limb[k] for k in ('name', 'length', 'reach', 'error_pct', 'longest_gap')}
+                             for limb in e.get(key, [])] or None for key in ('limbs', 'field_limbs')})
     if os.path.isfile(mesh):
         # Not evaluate's 'components': it counts after its clean-up (one, for 'largest').
         out['components'] = count_components(mesh)
@@ -624,12 +626,15 @@ def _capture_lines(rows: list[dict], ran) -> list[str]:
              "truth near the mesh) at 0.1 and 0.2 mm and at one and two pixels' footprint at the specimen "
              "(from truth.json's cameras); extent error in % along the truth's principal axes, longest "
              "first; reach: how far the mesh follows each leg, then each antenna, in % of its length "
-             "(`evaluate --limbs truth.json`); pieces: the components of the run's `mesh.ply`. PSNR: the "
+             "(`evaluate --limbs truth.json`), and after a semicolon how far the run's field itself does "
+             "(`--field RUN/checkpoint.npz`: a limb the field reaches and the mesh misses was lost in "
+             "meshing); pieces: the components of the run's `mesh.ply`. PSNR: the "
              f"training PSNR's mean over {PSNR_WINDOW} steps: its best (at step), its end, and the share of "
              f'the run\'s steps during which it lay more than {PSNR_DROP:g} dB below its best so far. '
              'Pictures: the mesh (left) beside the truth (right), seen from above the board.', '',
              f'| capture | photographs | preset | budget | Chamfer-L1 mm | F@{threshold} mm | '
-             'precision / recall 0.1 mm | 0.2 mm | 1 px | 2 px | extent error % | legs, antennae reach % | '
+             'precision / recall 0.1 mm | 0.2 mm | 1 px | 2 px | extent error % | legs, antennae reach % '
+             '(mesh; field) | '
              f'pieces | steps | '
              f'PSNR best (step) | PSNR end | below best - {PSNR_DROP:g} dB | others | status | ran | picture | '
              'PSNR plot |',
@@ -654,9 +659,12 @@ def _precision_recall(row: dict, k: int) -> str:
 
 
 def _limbs(row: dict) -> str:
-    """Each limb's reach error in %, legs then antennae, as evaluate names them."""
-    limbs = row.get('limbs') or []
-    return ' '.join(f"{limb['error_pct']:+.0f}" for limb in sorted(limbs, key=lambda x: 'antenna' in x['name']))
+    """Each limb's reach error in %, legs then antennae, as evaluate names them: the mesh's, and
+    after a semicolon the field's where it was measured."""
+    def errors(limbs):
+        return ' '.join(f"{limb['error_pct']:+.0f}" for limb in sorted(limbs, key=lambda x: 'antenna' in x['name']))
+    mesh, field = errors(row.get('limbs') or []), errors(row.get('field_limbs') or [])
+    return f'{mesh}; {field}' if field else mesh
 
 
 def criterion(rows: list[dict]) -> list[dict]:
