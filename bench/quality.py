@@ -275,8 +275,10 @@ def run_one(data: str, gt: str, runs: str, scene: str, variant: str, preset: str
 
 def _evaluate(run: str, gt: str, evaluation: str, postprocess: str | None,
               evaluate_args: tuple[str, ...] = ()) -> list[str]:
-    """evaluate's command; with limbs, the run's field is walked along them too (``--field``)."""
-    field = ('--field', os.path.join(run, 'checkpoint.npz')) if '--limbs' in evaluate_args else ()
+    """evaluate's command; with limbs, the run's field is walked along them too (``--field``)
+    where the run left its checkpoint."""
+    checkpoint = os.path.join(run, 'checkpoint.npz')
+    field = ('--field', checkpoint) if '--limbs' in evaluate_args and os.path.isfile(checkpoint) else ()
     return [sys.executable, '-m', 'reneus_mi.evaluate', os.path.join(run, 'mesh.ply'), gt, '--json', evaluation,
             '--overwrite', *evaluate_args, *field, *(['--postprocess', postprocess] if postprocess else [])]
 
