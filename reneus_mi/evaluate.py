@@ -91,9 +91,9 @@ def main(argv: list[str] | None = None) -> int:
                                      overwrite=args.overwrite, extensions=('.json',))
         pred, gt = load_mesh(args.pred, 'predicted mesh'), load_mesh(args.gt, 'ground-truth mesh')
         container = load_container(args.container) if args.container else None
-        if args.field and not args.limbs:
-            raise ReneusError('--field needs --limbs: the limbs along which the field is probed')
         if args.field:
+            if not args.limbs:
+                raise ReneusError('--field needs --limbs: the limbs along which the field is probed')
             check_npz_file(args.field, 'checkpoint')
         if args.postprocess == 'crop' and container is None:
             raise ReneusError('--postprocess crop needs --container')
