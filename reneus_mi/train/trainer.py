@@ -366,6 +366,10 @@ class Trainer:
         if cap < math.inf and 'variance' in self.keys:
             key = self.keys['variance']
             self.opt[key] = dr.minimum(self.opt[key], self.field.variance_of(cap))
+        floor = cfg.sharpness_min(schedule)
+        if floor and 'variance' in self.keys:
+            key = self.keys['variance']
+            self.opt[key] = dr.maximum(self.opt[key], self.field.variance_of(floor))
         self.params.update(self.opt)
         self.iteration += 1
         self.best_loss = min(self.best_loss, value)

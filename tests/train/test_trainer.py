@@ -4,6 +4,7 @@ a sample budget sets the batch, its memory floor, the sharpness under its cap.
 """
 from __future__ import annotations
 
+import math
 import os
 
 import drjit as dr
@@ -121,6 +122,25 @@ def test_sharpness_stays_under_its_rising_cap(scene_xml, tmp_path):
             assert s == pytest.approx(8.0, rel=1e-6)
     with pytest.raises(ReneusError, match=r'train.sharpness_end=32.0: expected at least train.sharpness_start=64.0'):
         TrainConfig(sharpness_start=64.0, sharpness_end=32.0)
+
+
+def test_sharpness_is_held_at_its_cap_at_the_end(scene_xml, tmp_path):
+    """s starts at 20 (variance 0.3), under a cap rising from 30 to 60: learned freely over the
+    first half, and from the step at which the hold begins exactly at that step's cap."""
+    trainer = new_trainer(scene_xml, tmp_path, sharpness_start=30.0, sharpness_end=60.0, sharpness_hold=0.5,
+                          sharpness_floor=1.0)
+    cfg = trainer.cfg
+    begins = math.ceil(0.5 * cfg.iterations)
+    assert cfg.sharpness_min(begins - 1) == 0.0
+    assert cfg.sharpness_min(begins) == pytest.approx(cfg.sharpness_cap(begins))
+    assert TrainConfig(sharpness_start=30.0, sharpness_floor=0.5).sharpness_min(3000) == pytest.approx(256.0)
+    for it in range(cfg.iterations):
+        trainer.step()
+        s = float(trainer.field.inv_s()[0])
+        if it < begins:
+            assert s < cfg.sharpness_cap(it)
+        else:
+            assert s == pytest.approx(cfg.sharpness_cap(it), rel=1e-5)
 
 
 def test_rays_through_the_container_edges_are_left_out_of_the_colour_loss(scene_xml, tmp_path):
