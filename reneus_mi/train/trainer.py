@@ -362,14 +362,11 @@ class Trainer:
                 for name in group.keys:
                     key = self.keys[name]
                     self.opt[key] = dr.clip(self.opt[key], *group.bounds)
-        cap = cfg.sharpness_cap(schedule)
-        if cap < math.inf and 'variance' in self.keys:
+        cap, floor = cfg.sharpness_cap(schedule), cfg.sharpness_min(schedule)
+        if (cap < math.inf or floor) and 'variance' in self.keys:
             key = self.keys['variance']
-            self.opt[key] = dr.minimum(self.opt[key], self.field.variance_of(cap))
-        floor = cfg.sharpness_min(schedule)
-        if floor and 'variance' in self.keys:
-            key = self.keys['variance']
-            self.opt[key] = dr.maximum(self.opt[key], self.field.variance_of(floor))
+            self.opt[key] = dr.clip(self.opt[key], self.field.variance_of(floor) if floor else -math.inf,
+                                    self.field.variance_of(cap) if cap < math.inf else math.inf)
         self.params.update(self.opt)
         self.iteration += 1
         self.best_loss = min(self.best_loss, value)
