@@ -204,6 +204,12 @@ class TrainConfig:
                                      'learning_rate_alpha', 'max_minutes', 'seed', 'sharpness_start', 'sharpness_hold',
                                      'sharpness_floor'))
         check_choice(self, 'postprocess', POSTPROCESS_MODES)
+        for name in ('sharpness_hold', 'sharpness_floor'):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ReneusError(f'train.{name}={getattr(self, name)}: expected a share in [0, 1]')
+        if self.sharpness_floor and not self.sharpness_start:
+            raise ReneusError(f'train.sharpness_floor={self.sharpness_floor}: needs train.sharpness_start '
+                              '(the floor is a share of the cap)')
         if self.sharpness_start and not self.sharpness_end >= self.sharpness_start:
             raise ReneusError(f'train.sharpness_end={self.sharpness_end}: expected at least '
                               f'train.sharpness_start={self.sharpness_start}')

@@ -141,6 +141,10 @@ def test_sharpness_is_held_at_its_cap_at_the_end(scene_xml, tmp_path):
             assert s < cfg.sharpness_cap(it)
         else:
             assert s == pytest.approx(cfg.sharpness_cap(it), rel=1e-5)
+    with pytest.raises(ReneusError, match=r'train.sharpness_floor=1.5: expected a share in \[0, 1\]'):
+        TrainConfig(sharpness_start=30.0, sharpness_floor=1.5)
+    with pytest.raises(ReneusError, match=r'train.sharpness_floor=1.0: needs train.sharpness_start'):
+        TrainConfig(sharpness_floor=1.0)
 
 
 def test_rays_through_the_container_edges_are_left_out_of_the_colour_loss(scene_xml, tmp_path):
