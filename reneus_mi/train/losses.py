@@ -25,16 +25,19 @@ class Term(NamedTuple):
     weight: float
 
 
-def loss_dict(result, target: mi.Color3f, cfg, silhouette: mi.Float | None = None) -> dict[str, Term]:
+def loss_dict(result, target: mi.Color3f, cfg, silhouette: mi.Float | None = None,
+              pair: tuple[mi.Color3f, mi.Color3f] | None = None) -> dict[str, Term]:
     """The terms of a batch by name: ``color`` (Eq. 14, weight 1), ``trans`` (Eq. 15, λ1 =
     ``cfg.trans_weight``), ``eikonal`` (Eq. 16, λ2 = ``cfg.eikonal_weight``), where its weight
     is not 0 and nothing but the field is refined ``reach`` (``cfg.reach_weight``) and, given
     its value, ``silhouette`` (``cfg.refine.silhouette_weight``).
 
     ``result`` is :meth:`ReNeuSIntegrator.render_rays`'s, ``target`` the photographs'
-    colours, ``cfg`` a :class:`~reneus_mi.train.config.TrainConfig`.
+    colours, ``cfg`` a :class:`~reneus_mi.train.config.TrainConfig`; ``pair``: each pixel's two
+    rays' colours (``train.pixels.paired``), whose :func:`paired_l1` is then the colour term.
     """
-    terms = {'color': Term(color_l1(result.color, target), 1.0),
+    color = color_l1(result.color, target) if pair is None else paired_l1(*pair, target)
+    terms = {'color': Term(color, 1.0),
              'trans': Term(transmittance_sparsity(result.sparsity), cfg.trans_weight),
              'eikonal': Term(eikonal(result.eikonal, result.n_samples), cfg.eikonal_weight)}
     if cfg.reach_weight and not cfg.refine.any():
@@ -63,6 +66,20 @@ def mean(x) -> mi.Float:
 def color_l1(pred: mi.Color3f, target: mi.Color3f) -> mi.Float:
     """L_color (Eq. 14): mean L1 distance, averaged over rays and channels."""
     return mean(dr.abs(pred - target))
+
+
+def paired_l1(first: mi.Color3f, second: mi.Color3f, target: mi.Color3f) -> mi.Float:
+    """Beyond the paper: the colour loss of two rays through independent random points of each
+    pixel, with errors a and b: mean over pixels and channels of ab / (|a| + |b|), the
+    denominator held constant. Its gradient moves each ray by the other's error, which is
+    independent of it: in expectation the gradient of the pixel's mean error, as the
+    photograph's pixel averages what covers it. One ray against the pixel (L1 or L2 alike) is
+    least for the blur of what the pixel covers: an edge drawn sharp errs on every ray, and a
+    thin part is drawn half transparent. Where the two rays agree it is L1's gradient; its
+    value is the L1 error of the pixels' means, as :func:`color_l1` of them."""
+    a, b = first - target, second - target
+    paired = mean(a * b / (dr.detach(dr.abs(a) + dr.abs(b)) + 1e-6))
+    return paired + dr.detach(color_l1(0.5 * (first + second), target) - paired)
 
 
 def welsch(pred: mi.Color3f, target: mi.Color3f, scale: float) -> mi.Float:

@@ -24,9 +24,11 @@ tenth of a time, and one that had to wait for its own draw would spend its batch
 unseen body as much as on the legs. The errors and the blocks' prefix sum are the
 sampler's state (saved in the checkpoint: a resumed run draws what the unbroken one drew).
 
-Two more are options, measured but not defaults: several rays per drawn pixel, one per
-stratum, whose mean is compared with the photograph's pixel (``rays_per_pixel``), and the
-camera's blur beyond the pixel's area (``blur``).
+Three more are options, measured but not defaults: several rays per drawn pixel, one per
+stratum, whose mean is compared with the photograph's pixel (``rays_per_pixel``); two rays
+through independent points of it, whose errors' product is the loss (``paired``,
+:func:`reneus_mi.train.losses.paired_l1`); and the camera's blur beyond the pixel's area
+(``blur``).
 """
 from __future__ import annotations
 
@@ -66,6 +68,12 @@ class PixelSamplerConfig:
     pixels it covers less than half is fitted away. Measured: four kept an antenna at 960 px,
     and lost the legs of a 12 MP capture, whose batches then reach a quarter as many pixels
     (README, "A pixel's rays")."""
+    paired: bool = False
+    """Two rays through independent random points of each drawn pixel, the colour loss their
+    errors' product (:func:`~reneus_mi.train.losses.paired_l1`): its expected gradient is that of
+    the pixel's mean error, so a thin part drawn sharp costs nothing against the photograph's
+    blurred pixel, where one ray's loss is least for the blur itself (a leg drawn half
+    transparent, its tip faded). Not with ``rays_per_pixel`` above 1."""
     blur: float = 0.0
     """Standard deviation, in pixels, of the camera's blur beyond the pixel's area (optics,
     demosaicing, resampling): each ray's point moves by a normal draw of it, so that a pixel's
@@ -78,6 +86,14 @@ class PixelSamplerConfig:
         if round(self.rays_per_pixel ** 0.5) ** 2 != self.rays_per_pixel:
             raise ReneusError(f'rays_per_pixel={self.rays_per_pixel}: expected a square (1, 4, 9, ...): '
                               'one ray per stratum of a k x k grid of the pixel')
+        if self.paired and self.rays_per_pixel > 1:
+            raise ReneusError(f'paired with rays_per_pixel={self.rays_per_pixel}: expected one or the '
+                              'other (a pair is two rays through the whole pixel)')
+
+    @property
+    def rays(self) -> int:
+        """Rays through each drawn pixel."""
+        return 2 if self.paired else self.rays_per_pixel
 
 
 #: Bytes per photograph pixel that the sampler holds beyond the dataset, at most (a masked
@@ -119,10 +135,10 @@ class PixelSampler:
         self.drawn: mi.UInt32 | None = None
 
     def batch(self, step: int, n: int) -> tuple[mi.Ray3f, mi.Color3f]:
-        """About ``n`` camera rays through random masked pixels (``rays_per_pixel`` each, ray k
-        of every pixel in the k-th run of lanes), and the photographs' colours at the pixels."""
+        """About ``n`` camera rays through random masked pixels (``config.rays`` each, ray k of
+        every pixel in the k-th run of lanes), and the photographs' colours at the pixels."""
         cfg = self.config
-        per = cfg.rays_per_pixel
+        per = cfg.rays
         n = max(n // per, 1)
         rng = mi.PCG32(n, initstate=opaque_seed(step_seed(self.seed, step, PIXELS)))
         slot = rng.next_uint32_bounded(self.n_pixels)
@@ -134,9 +150,9 @@ class PixelSampler:
             slot = by_error if uniform is None else dr.select(uniform, slot, by_error)
             self.drawn = slot
         index = dr.gather(mi.UInt32, self.pixels, slot)
-        side = round(per ** 0.5)
+        side = round(cfg.rays_per_pixel ** 0.5)
         lane = dr.arange(mi.UInt32, n * per)
-        k = lane // n
+        k = lane // n % cfg.rays_per_pixel     # the ray's stratum (a pair's share the whole pixel)
         draws = rng if per == 1 else mi.PCG32(n * per,
                                                initstate=opaque_seed(step_seed(self.seed, step, STRATA)))
         u, v = (draws.next_float32(), draws.next_float32()) if cfg.jitter else (0.5, 0.5)
@@ -160,7 +176,7 @@ class PixelSampler:
     def pixel_mean(self, value):
         """Per drawn pixel, the mean of a per-ray value of the last :meth:`batch` over the
         pixel's rays (the value itself with one ray per pixel)."""
-        per = self.config.rays_per_pixel
+        per = self.config.rays
         if per == 1:
             return value
         n = dr.width(value) // per
@@ -201,9 +217,15 @@ class PixelSampler:
         of them, or none)."""
         n = dr.width(self.drawn) if self.drawn is not None else 0
         lanes = self.uniform_lanes(n)
-        if lanes is None or self.config.rays_per_pixel == 1:
-            return lanes
-        return dr.gather(mi.Bool, lanes, dr.arange(mi.UInt32, n * self.config.rays_per_pixel) % n)
+        return lanes if lanes is None else self.per_ray(lanes)
+
+    def per_ray(self, value):
+        """A per-pixel value of the last :meth:`batch` for each of its rays."""
+        per = self.config.rays
+        if per == 1:
+            return value
+        n = dr.width(value)
+        return dr.gather(type(value), value, dr.arange(mi.UInt32, n * per) % n)
 
     def record(self, color: mi.Color3f, target: mi.Color3f) -> None:
         """The colour error of the batch just drawn, per pixel, for the next draws by error; the

@@ -317,7 +317,8 @@ class Trainer:
                                              seed=step_seed(cfg.seed, it, JITTER),
                                              refining=self.pixels.uniform_rays() if self.refined else None))
         result = self.integrator.render_rays(self.scene, ray)
-        if self.pixels.config.rays_per_pixel > 1:
+        rays = result.color
+        if self.pixels.config.rays > 1:
             # A pixel's value: its rays' mean radiance, tone-mapped as the camera's sensor does
             # (and the reach term's inputs per pixel, as the colour it is weighed with).
             per_pixel = self.pixels.pixel_mean
@@ -327,9 +328,15 @@ class Trainer:
             # Rays through the container's edges keep their colour: no loss, no error to draw by.
             near = self.pixels.pixel_mean(dr.select(result.near_edge, 1.0, 0.0)) > 0.0
             target = dr.select(near, dr.detach(result.color), target)
+            # A pair's rays agree with their mean there: no loss either.
+            rays = dr.select(self.pixels.per_ray(near), self.pixels.per_ray(dr.detach(result.color)), rays)
         self.pixels.record(result.color, target)
         silhouette = None if self.silhouette is None else self.silhouette(it, self.surroundings.pose)
-        terms = losses.loss_dict(result, target, cfg, silhouette)
+        pair = None
+        if self.pixels.config.paired:
+            n = dr.width(target)
+            pair = tuple(dr.gather(mi.Color3f, rays, dr.arange(mi.UInt32, n) + k * n) for k in range(2))
+        terms = losses.loss_dict(result, target, cfg, silhouette, pair)
         loss = losses.total(terms)
         mse = losses.mse(result.color, target, self.pixels.uniform_lanes(dr.width(target)))
         samples = dr.sum(result.n_samples)

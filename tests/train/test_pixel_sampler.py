@@ -25,7 +25,7 @@ def _points_in_pixels(sampler: PixelSampler, ds: Dataset, n: int) -> tuple[np.nd
     y = d[:, 1] / d[:, 2] * K[1, 1] + K[1, 2]
     h, w = ds.masks.shape[1:]
     rest = np.asarray(sampler.pixels)[np.asarray(sampler.drawn)] % (h * w)
-    per = sampler.config.rays_per_pixel
+    per = sampler.config.rays
     return x - np.tile(rest % w, per), y - np.tile(rest // w, per)
 
 
@@ -139,6 +139,29 @@ def test_a_pixels_rays_fill_its_strata_and_its_value_is_their_mean():
     values = np.random.default_rng(0).random((3, n)).astype(np.float32)
     mean = np.asarray(sampler.pixel_mean(mi.Color3f(values)))
     assert np.allclose(mean, values.reshape(3, 4, n // 4).mean(axis=1), atol=1e-6)
+
+
+def test_a_pairs_rays_go_through_independent_points_of_the_whole_pixel():
+    """Paired rays: both of a pixel's anywhere in it (uniform over the pixel, uncorrelated); a
+    batch of n rays is n / 2 pixels."""
+    masks = np.zeros((1, 12, 16), bool)
+    masks[:, 2:10, 3:13] = True
+    ds = _dataset(np.zeros(masks.shape + (3,), np.uint8), masks)
+    sampler = PixelSampler(ds, seed=7, config=PixelSamplerConfig(paired=True))
+    n = 1 << 14
+    u, v = _points_in_pixels(sampler, ds, n)
+    assert len(u) == n and len(np.asarray(sampler.drawn)) == n // 2
+    for t in (u, v):
+        assert np.all((t > -1e-4) & (t < 1 + 1e-4))
+        first, second = t[:n // 2], t[n // 2:]
+        for half in (first, second):
+            assert np.var(half) == pytest.approx(1 / 12, rel=0.05)
+        assert abs(np.corrcoef(first, second)[0, 1]) < 0.03
+
+
+def test_paired_rays_exclude_strata():
+    with pytest.raises(ReneusError, match='paired with rays_per_pixel=4: expected one or the other'):
+        PixelSamplerConfig(paired=True, rays_per_pixel=4)
 
 
 def test_blur_spreads_the_rays_as_the_camera_does():
