@@ -71,10 +71,12 @@ def chamfer(pred: trimesh.Trimesh, gt: trimesh.Trimesh, *, n_points: int | None 
             raise ReneusError(f'threshold={d}: expected a positive distance')
     pred_points = _sample(pred, n_points, seed, 'predicted')
     gt_points = _sample(gt, n_points, seed, 'ground-truth')
+    pred_vertices = np.asarray(pred.vertices)
     if container is not None:
         pred_points = pred_points[inside(pred_points, container)]
         if len(pred_points) == 0:
             raise ReneusError('every predicted point lies outside the container')
+        pred_vertices = pred_vertices[inside(pred_vertices, container)]
 
     d_pred, _ = cKDTree(gt_points).query(pred_points, workers=-1)
     d_gt, _ = cKDTree(pred_points).query(gt_points, workers=-1)
@@ -94,14 +96,18 @@ def chamfer(pred: trimesh.Trimesh, gt: trimesh.Trimesh, *, n_points: int | None 
         'n_pred': int(len(pred_points)),
         'at': {f'{d:g}': {'precision': float(np.mean(d_pred < d)), 'recall': float(np.mean(d_gt < d))}
                for d in at},
-        'extents': extents(pred_points, gt_points),
+        'extents': extents(pred_vertices, np.asarray(gt.vertices), gt_points),
     }
 
 
-def extents(pred_points: np.ndarray, gt_points: np.ndarray) -> dict:
-    """Sizes of both point sets along the GT's principal axes, longest first, and the
-    predicted sizes' error in % of the GT's."""
-    centred = gt_points - gt_points.mean(axis=0)
+def extents(pred_points: np.ndarray, gt_points: np.ndarray, gt_surface: np.ndarray | None = None) -> dict:
+    """Sizes of both point sets along the principal axes of the GT's surface (``gt_surface``:
+    points spread over it by area; ``gt_points`` by default), longest first, and the
+    predicted sizes' error in % of the GT's. Given the meshes' vertices, the sizes are exact:
+    a mesh's extreme along any direction is a vertex, where a sample of 10,000 points
+    misses a thin leg's tip by a share of its length (1-3 % of the extent measured)."""
+    surface = gt_points if gt_surface is None else gt_surface
+    centred = surface - surface.mean(axis=0)
     axes = np.linalg.svd(centred, full_matrices=False)[2]
     gt_size = np.ptp(gt_points @ axes.T, axis=0)
     pred_size = np.ptp(pred_points @ axes.T, axis=0)

@@ -82,3 +82,20 @@ def test_container_drops_fake_walls():
     assert r['n_pred'] == pytest.approx(share * r['n_points'], rel=0.05)
     # What is left is the object alone, down to the sampling floor 0.5 sqrt(A / N) ≈ 0.007.
     assert r['accuracy'] < 0.01
+
+
+def test_extents_are_exact_at_a_thin_tip():
+    """A body with a tapering leg: its extent along the leg is the leg's tip, where a cone has
+    almost no area for 10,000 samples to reach; measured at the vertices it is exact (1.5, the
+    prediction's leg 0.1 shorter: -6.7 %)."""
+    def insect(needle):
+        body = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+        leg = trimesh.creation.cone(radius=0.02, height=needle, sections=8)
+        leg.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+        leg.apply_translation([0.5, 0, 0])
+        return trimesh.util.concatenate([body, leg])
+    r = chamfer(insect(0.4), insect(0.5))
+    gt, pred = r['extents']['gt'][0], r['extents']['pred'][0]
+    # (along the samples' principal axis, a little off the needle's)
+    assert gt == pytest.approx(1.5, rel=3e-3) and pred == pytest.approx(1.4, rel=3e-3)
+    assert r['extents']['error_pct'][0] == pytest.approx(-100 * 0.1 / 1.5, abs=0.05)
