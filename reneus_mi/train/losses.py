@@ -34,9 +34,16 @@ def loss_dict(result, target: mi.Color3f, cfg, silhouette: mi.Float | None = Non
 
     ``result`` is :meth:`ReNeuSIntegrator.render_rays`'s, ``target`` the photographs'
     colours, ``cfg`` a :class:`~reneus_mi.train.config.TrainConfig`; ``pair``: each pixel's two
-    rays' colours (``train.pixels.paired``), whose :func:`paired_l1` is then the colour term.
+    rays' colours (``train.pixels.paired``, the share of the colour term that :func:`paired_l1`
+    takes; the rest is each ray's L1).
     """
-    color = color_l1(result.color, target) if pair is None else paired_l1(*pair, target)
+    if pair is None:
+        color = color_l1(result.color, target)
+    else:
+        share = cfg.pixels.paired
+        color = share * paired_l1(*pair, target)
+        if share < 1.0:
+            color += (1.0 - share) * 0.5 * (color_l1(pair[0], target) + color_l1(pair[1], target))
     terms = {'color': Term(color, 1.0),
              'trans': Term(transmittance_sparsity(result.sparsity), cfg.trans_weight),
              'eikonal': Term(eikonal(result.eikonal, result.n_samples), cfg.eikonal_weight)}

@@ -68,12 +68,14 @@ class PixelSamplerConfig:
     pixels it covers less than half is fitted away. Measured: four kept an antenna at 960 px,
     and lost the legs of a 12 MP capture, whose batches then reach a quarter as many pixels
     (README, "A pixel's rays")."""
-    paired: bool = False
-    """Two rays through independent random points of each drawn pixel, the colour loss their
-    errors' product (:func:`~reneus_mi.train.losses.paired_l1`): its expected gradient is that of
-    the pixel's mean error, so a thin part drawn sharp costs nothing against the photograph's
-    blurred pixel, where one ray's loss is least for the blur itself (a leg drawn half
-    transparent, its tip faded). Not with ``rays_per_pixel`` above 1."""
+    paired: float = 0.0
+    """Share of the colour loss taken by pairs of rays (0: one ray a pixel). Above 0, two rays
+    go through independent random points of each drawn pixel, and that share of the loss is
+    their errors' product (:func:`~reneus_mi.train.losses.paired_l1`), whose expected gradient
+    is that of the pixel's mean error: a thin part drawn sharp costs nothing against the
+    photograph's blurred pixel, where one ray's loss is least for the blur itself (a leg drawn
+    half transparent, its tip faded). The rest is each ray's own L1, whose pull toward the
+    blur is also a smoothness prior within a pixel. Not with ``rays_per_pixel`` above 1."""
     blur: float = 0.0
     """Standard deviation, in pixels, of the camera's blur beyond the pixel's area (optics,
     demosaicing, resampling): each ray's point moves by a normal draw of it, so that a pixel's
@@ -86,6 +88,8 @@ class PixelSamplerConfig:
         if round(self.rays_per_pixel ** 0.5) ** 2 != self.rays_per_pixel:
             raise ReneusError(f'rays_per_pixel={self.rays_per_pixel}: expected a square (1, 4, 9, ...): '
                               'one ray per stratum of a k x k grid of the pixel')
+        if not 0.0 <= self.paired <= 1.0:
+            raise ReneusError(f'paired={self.paired}: expected a share in [0, 1]')
         if self.paired and self.rays_per_pixel > 1:
             raise ReneusError(f'paired with rays_per_pixel={self.rays_per_pixel}: expected one or the '
                               'other (a pair is two rays through the whole pixel)')
@@ -93,7 +97,7 @@ class PixelSamplerConfig:
     @property
     def rays(self) -> int:
         """Rays through each drawn pixel."""
-        return 2 if self.paired else self.rays_per_pixel
+        return 2 if self.paired > 0.0 else self.rays_per_pixel
 
 
 #: Bytes per photograph pixel that the sampler holds beyond the dataset, at most (a masked

@@ -57,10 +57,10 @@ def test_reach_pulls_only_where_a_surface_would_bring_the_pixel_nearer_its_photo
 
 
 def test_a_pair_of_rays_is_logged_as_the_pixels_mean_error(scene_xml, tmp_path):
-    """Paired rays (``train.pixels.paired``): the step sums and logs the colour term as with one
+    """Paired rays, half the colour loss (``train.pixels.paired``): the step sums and logs it as with one
     ray, the PSNR finite."""
     from reneus_mi.train.pixel_sampler import PixelSamplerConfig
-    trainer = new_trainer(scene_xml, tmp_path, iterations=2, pixels=PixelSamplerConfig(paired=True))
+    trainer = new_trainer(scene_xml, tmp_path, iterations=2, pixels=PixelSamplerConfig(paired=0.5))
     trainer.run(progress=False)
     cfg = trainer.cfg
     for line in (tmp_path / 'log.jsonl').read_text().splitlines():

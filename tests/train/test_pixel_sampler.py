@@ -147,7 +147,7 @@ def test_a_pairs_rays_go_through_independent_points_of_the_whole_pixel():
     masks = np.zeros((1, 12, 16), bool)
     masks[:, 2:10, 3:13] = True
     ds = _dataset(np.zeros(masks.shape + (3,), np.uint8), masks)
-    sampler = PixelSampler(ds, seed=7, config=PixelSamplerConfig(paired=True))
+    sampler = PixelSampler(ds, seed=7, config=PixelSamplerConfig(paired=1.0))
     n = 1 << 14
     u, v = _points_in_pixels(sampler, ds, n)
     assert len(u) == n and len(np.asarray(sampler.drawn)) == n // 2
@@ -159,9 +159,11 @@ def test_a_pairs_rays_go_through_independent_points_of_the_whole_pixel():
         assert abs(np.corrcoef(first, second)[0, 1]) < 0.03
 
 
-def test_paired_rays_exclude_strata():
+def test_paired_is_a_share_and_excludes_strata():
+    with pytest.raises(ReneusError, match=r'paired=1.5: expected a share in \[0, 1\]'):
+        PixelSamplerConfig(paired=1.5)
     with pytest.raises(ReneusError, match='paired with rays_per_pixel=4: expected one or the other'):
-        PixelSamplerConfig(paired=True, rays_per_pixel=4)
+        PixelSamplerConfig(paired=1.0, rays_per_pixel=4)
 
 
 def test_blur_spreads_the_rays_as_the_camera_does():
