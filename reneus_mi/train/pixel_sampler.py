@@ -183,12 +183,15 @@ class PixelSampler:
         per = self.config.rays
         if per == 1:
             return value
-        n = dr.width(value) // per
-        lane = dr.arange(mi.UInt32, n)
-        total = dr.gather(type(value), value, lane)
+        total = self.ray(value, 0)
         for k in range(1, per):
-            total += dr.gather(type(value), value, lane + k * n)
+            total += self.ray(value, k)
         return total / per
+
+    def ray(self, value, k: int):
+        """Per drawn pixel, the per-ray value of the last :meth:`batch` of its k-th ray."""
+        n = dr.width(value) // self.config.rays
+        return dr.gather(type(value), value, dr.arange(mi.UInt32, n) + k * n)
 
     def _by_error(self, rng: mi.PCG32) -> mi.UInt32:
         """Slots drawn in proportion to their errors: a block by the prefix sum of the last

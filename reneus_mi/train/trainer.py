@@ -332,10 +332,7 @@ class Trainer:
             rays = dr.select(self.pixels.per_ray(near), self.pixels.per_ray(dr.detach(result.color)), rays)
         self.pixels.record(result.color, target)
         silhouette = None if self.silhouette is None else self.silhouette(it, self.surroundings.pose)
-        pair = None
-        if self.pixels.config.paired:
-            n = dr.width(target)
-            pair = tuple(dr.gather(mi.Color3f, rays, dr.arange(mi.UInt32, n) + k * n) for k in range(2))
+        pair = (self.pixels.ray(rays, 0), self.pixels.ray(rays, 1)) if self.pixels.config.paired else None
         terms = losses.loss_dict(result, target, cfg, silhouette, pair)
         loss = losses.total(terms)
         mse = losses.mse(result.color, target, self.pixels.uniform_lanes(dr.width(target)))
